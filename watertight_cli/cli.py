@@ -1,0 +1,148 @@
+"""The ``watertight`` command line.
+
+Library errors (``WatertightError``) become one-line messages naming the file and the reason;
+nothing here prints a traceback. Heavy modules (OCP, scipy) are imported inside the commands so
+that ``watertight --help`` answers at once.
+
+Exit codes (also in ``watertight --help``):
+  0  all files processed and within the gates
+  1  some file failed (unreadable, invalid, or the conversion failed)
+  2  usage error (bad option or argument)
+  3  a gate was exceeded (``--max-gap``)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import click
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_GATE = 0, 1, 2, 3
+
+EPILOG = """\b
+Exit codes:
+  0  all files processed and within the gates
+  1  some file failed (unreadable, invalid or not convertible)
+  2  usage error
+  3  a gate (--max-gap) was exceeded
+"""
+
+
+def _err(msg: str) -> None:
+    click.echo(f"watertight: error: {msg}", err=True)
+
+
+class FileOutcome:
+    """What happened to one file: its report or its one-line error."""
+
+    def __init__(self, path: str, report: dict | None = None, error: str | None = None,
+                 gate: str | None = None):
+        self.path, self.report, self.error, self.gate = path, report, error, gate
+
+
+class RunReport:
+    """Collects per-file outcomes; ``exit_code`` is the one place that decides the exit status."""
+
+    def __init__(self):
+        self.outcomes: list[FileOutcome] = []
+
+    def add(self, outcome: FileOutcome) -> None:
+        self.outcomes.append(outcome)
+
+    @property
+    def exit_code(self) -> int:
+        if any(o.error for o in self.outcomes):
+            return EXIT_FAILED
+        if any(o.gate for o in self.outcomes):
+            return EXIT_GATE
+        return EXIT_OK
+
+
+def _measure(path: str, tol) -> dict:
+    from .inspect import inspect
+    from .report import input_report
+
+    return input_report(inspect(path, tol))
+
+
+def _run_guarded(fn, path: str):
+    """Run fn(); return (result, None) or (None, one-line reason). Never lets a traceback out."""
+    from .errors import WatertightError
+
+    try:
+        return fn(), None
+    except WatertightError as exc:
+        return None, str(exc)
+    except MemoryError:
+        return None, f"{path}: out of memory"
+    except Exception as exc:  # noqa: BLE001 - converted once, here, at the edge
+        if os.environ.get("WATERTIGHT_DEBUG"):
+            raise
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        return None, f"{path}: internal error ({type(exc).__name__}: {reason}); set WATERTIGHT_DEBUG=1 for details"
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
+             epilog=EPILOG)
+@click.version_option(package_name="watertight_cli", prog_name="watertight")
+def main():
+    """Turn trimmed CAD models (STEP, IGES) into watertight models of untrimmed Bezier patches.
+
+    Trimmed B-rep faces leave gaps where neighbours meet, because an edge's 3D curve and each
+    face's surface(pcurve) are three different curves. `watertight report` measures those gaps.
+    """
+
+
+@main.command(epilog=EPILOG)
+@click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the report as JSON on stdout (schema_version inside). The table still goes to "
+                   "stderr unless -q.")
+@click.option("--max-gap", type=float, default=None, metavar="X",
+              help="Gate: exit 3 when a file's largest gap exceeds X (model units, mm).")
+@click.option("--samples", type=click.IntRange(3, 10000), default=33, show_default=True,
+              help="Samples per edge for gap measurement (equally spaced, ends included).")
+@click.option("-q", "--quiet", is_flag=True, help="No table on stderr.")
+def report(models, as_json, max_gap, samples, quiet):
+    """Measure how far MODELS are from watertight.
+
+    For every edge: the largest distance between its 3D curve C and each face's surface(pcurve),
+    and between the two faces' boundary curves S1(pc1) and S2(pc2), over equally spaced samples,
+    next to the edge's tolerance. For the model: faces by surface type, trimmed faces, free and
+    non-manifold edges, solids and shells, the diagonal and, for inputs whose faces are not
+    connected (IGES 144, STEP surface models), what sewing recovered.
+
+    A table goes to stderr, worst edges first; --json prints the full report on stdout.
+    """
+    from .tolerances import Tolerances
+
+    tol = Tolerances(gap_samples=samples)
+    run = RunReport()
+    for path in models:
+        rep, error = _run_guarded(lambda p=path: _measure(p, tol), path)
+        gate = None
+        if rep is not None and max_gap is not None and rep["gap"]["max"] > max_gap:
+            gate = f"{path}: max gap {rep['gap']['max']:.3g} exceeds --max-gap {max_gap:g}"
+        run.add(FileOutcome(path, rep, error, gate))
+        if error:
+            _err(error)
+        elif not quiet:
+            from .report import format_table
+
+            click.echo(format_table(rep), err=True)
+        if gate:
+            _err(gate)
+    if as_json:
+        from .report import SCHEMA_VERSION
+
+        payload = [o.report if o.report else {"schema_version": SCHEMA_VERSION, "file": o.path, "error": o.error}
+                   for o in run.outcomes]
+        doc = payload[0] if len(payload) == 1 else {"schema_version": SCHEMA_VERSION, "files": payload}
+        sys.stdout.write(json.dumps(doc, indent=1) + "\n")
+    sys.exit(run.exit_code)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

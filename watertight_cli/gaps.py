@@ -1,0 +1,105 @@
+"""Gap measurement on the array model: how far an edge's 3D curve and its faces' boundaries disagree.
+
+For every non-degenerate edge e with 3D curve C and faces f (each with surface S_f and pcurve
+pc_f, same-parameter with C), at ``Tolerances.gap_samples`` equally spaced parameters w:
+
+- ``curve_gap``  = max_w max_f |C(w) - S_f(pc_f(w))|
+- ``face_gap``   = max_w max_{f != g} |S_f(pc_f(w)) - S_g(pc_g(w))| (seams: both pcurves of the face)
+- ``gap``        = the larger of the two.
+
+The samples ("tracks") come either from the kernel on the input shape (``occ.extract.sample_tracks``,
+what the report shows) or from the array model (``model_tracks``, which measures what the
+conversion to arrays changed). The measurement itself is the same numpy code for both.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import Model
+from .tolerances import Tolerances
+
+
+@dataclass(frozen=True)
+class EdgeGap:
+    edge: int
+    faces: tuple[int, ...]
+    uses: int
+    curve_gap: float
+    face_gap: float
+    tolerance: float
+    where: tuple[float, float, float]  # the sample point of the largest gap, on the 3D curve
+
+    @property
+    def gap(self) -> float:
+        return max(self.curve_gap, self.face_gap)
+
+
+Tracks = dict[int, tuple[np.ndarray | None, list[tuple[int, np.ndarray]]]]
+"""Per edge index: (C(w) (k, 3) or None, [(face index, S_f(pc_f(w)) (k, 3)), ...])."""
+
+
+def model_tracks(model: Model, tol: Tolerances) -> Tracks:
+    """Sample the array model's edges the same way the kernel sampler does (``occ.sample_tracks``).
+
+    All samples of one face are evaluated in one vectorized call.
+    """
+    k = tol.gap_samples
+    params = {e.index: np.linspace(e.first, e.last, k) for e in model.edges if not e.degenerate}
+    requests: dict[int, list[tuple[int, object]]] = defaultdict(list)
+    for f in model.faces:
+        for loop in f.loops:
+            for ce in loop.coedges:
+                if ce.edge in params and ce.pcurve is not None:
+                    requests[f.index].append((ce.edge, ce.pcurve))
+    out: Tracks = {ei: (model.edges[ei].curve.evaluate(w) if model.edges[ei].curve is not None else None, [])
+                   for ei, w in params.items()}
+    for fi, reqs in requests.items():
+        uv = np.concatenate([pc.evaluate(params[ei]) for ei, pc in reqs])
+        pts = model.faces[fi].surface.evaluate(uv).reshape(len(reqs), k, 3)
+        for (ei, _), p in zip(reqs, pts, strict=True):
+            out[ei][1].append((fi, p))
+    return out
+
+
+def track_gap(c: np.ndarray | None, tr: list[tuple[int, np.ndarray]]) -> tuple[float, float, np.ndarray]:
+    """(curve-to-face gap, face-to-face gap, location of the larger) of one edge's tracks."""
+    curve_gap, face_gap, where, worst = 0.0, 0.0, None, -1.0
+    if c is not None:
+        for _, p in tr:
+            d = np.linalg.norm(p - c, axis=1)
+            i = int(np.argmax(d))
+            curve_gap = max(curve_gap, float(d[i]))
+            if d[i] > worst:
+                worst, where = d[i], c[i]
+    for a in range(len(tr)):
+        for b in range(a + 1, len(tr)):
+            d = np.linalg.norm(tr[a][1] - tr[b][1], axis=1)
+            i = int(np.argmax(d))
+            face_gap = max(face_gap, float(d[i]))
+            if d[i] > worst:
+                worst, where = d[i], tr[a][1][i]
+    if where is None:
+        ref = c if c is not None else (tr[0][1] if tr else np.zeros((1, 3)))
+        where = ref[len(ref) // 2]
+    return curve_gap, face_gap, where
+
+
+def max_gap(tracks: Tracks) -> float:
+    """The largest gap over all edges of a set of tracks."""
+    return max((max(track_gap(c, tr)[:2]) for c, tr in tracks.values()), default=0.0)
+
+
+def edge_gaps(model: Model, tracks: Tracks) -> list[EdgeGap]:
+    """Per-edge gaps from sampled tracks, in edge order (degenerate edges are skipped)."""
+    out = []
+    for e in model.edges:
+        if e.degenerate or e.index not in tracks:
+            continue
+        curve_gap, face_gap, where = track_gap(*tracks[e.index])
+        out.append(EdgeGap(e.index, e.faces, e.uses, curve_gap, face_gap, e.tolerance,
+                           tuple(float(x) for x in where)))
+    return out

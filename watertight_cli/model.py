@@ -1,0 +1,228 @@
+"""The model as plain arrays: surfaces, pcurves, 3D curves, loops, edges. No OCP here.
+
+``watertight_cli.occ.extract`` fills these from an OCCT shape; everything downstream (gap
+measurement, the edge plan, cells, composition) reads only these arrays.
+
+Conventions
+-----------
+- B-splines carry their *flat* knot vector (knots repeated by multiplicity), as in the NURBS Book.
+  A curve of degree p with n poles has n + p + 1 knots. Periodic kernel objects are unperiodized
+  before they get here, so every knot vector is an ordinary (usually clamped) one.
+- Rational objects have ``weights``; ``homogeneous()`` returns premultiplied poles with the weight
+  as last coordinate, which is what the Bezier core works on.
+- Indices: faces, edges and vertices are numbered from 0 in the order of OCCT's indexed maps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import BSpline, NdBSpline
+
+
+def _homogeneous(poles: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    if weights is None:
+        return poles
+    return np.concatenate([poles * weights[..., None], weights[..., None]], axis=-1)
+
+
+@dataclass(frozen=True)
+class BSplineCurve:
+    """A (rational) B-spline curve in any dimension.
+
+    degree : int
+    knots : (n + degree + 1,) float, flat
+    poles : (n, d) float
+    weights : (n,) float or None (polynomial)
+    """
+
+    degree: int
+    knots: np.ndarray
+    poles: np.ndarray
+    weights: np.ndarray | None = None
+
+    @property
+    def rational(self) -> bool:
+        return self.weights is not None
+
+    @property
+    def dim(self) -> int:
+        return self.poles.shape[1]
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        return float(self.knots[self.degree]), float(self.knots[-self.degree - 1])
+
+    def homogeneous(self) -> np.ndarray:
+        """(n, d+1) premultiplied poles and weights, or (n, d) poles when polynomial."""
+        return _homogeneous(self.poles, self.weights)
+
+    def evaluate(self, t: np.ndarray) -> np.ndarray:
+        """Points at parameters ``t`` (k,) -> (k, d). Parameters are clipped to the domain."""
+        a, b = self.domain
+        t = np.clip(np.asarray(t, dtype=float), a, b)
+        h = BSpline(self.knots, self.homogeneous(), self.degree, extrapolate=False)(t)
+        if self.weights is None:
+            return h
+        return h[:, :-1] / h[:, -1:]
+
+
+@dataclass(frozen=True)
+class BSplineSurface:
+    """A (rational) tensor-product B-spline surface in 3D.
+
+    udegree, vdegree : int
+    uknots : (nu + udegree + 1,) float, flat; vknots likewise
+    poles : (nu, nv, 3) float, first axis along u
+    weights : (nu, nv) float or None
+    """
+
+    udegree: int
+    vdegree: int
+    uknots: np.ndarray
+    vknots: np.ndarray
+    poles: np.ndarray
+    weights: np.ndarray | None = None
+
+    @property
+    def rational(self) -> bool:
+        return self.weights is not None
+
+    @property
+    def domain(self) -> tuple[float, float, float, float]:
+        p, q = self.udegree, self.vdegree
+        return (float(self.uknots[p]), float(self.uknots[-p - 1]),
+                float(self.vknots[q]), float(self.vknots[-q - 1]))
+
+    @property
+    def is_bezier(self) -> bool:
+        """One span each way: a Bezier patch."""
+        return self.poles.shape[0] == self.udegree + 1 and self.poles.shape[1] == self.vdegree + 1
+
+    def homogeneous(self) -> np.ndarray:
+        return _homogeneous(self.poles, self.weights)
+
+    def evaluate(self, uv: np.ndarray) -> np.ndarray:
+        """Points at parameter pairs ``uv`` (k, 2) -> (k, 3). Parameters are clipped to the domain."""
+        u0, u1, v0, v1 = self.domain
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        uv = np.column_stack([np.clip(uv[:, 0], u0, u1), np.clip(uv[:, 1], v0, v1)])
+        spl = NdBSpline((self.uknots, self.vknots), self.homogeneous(), (self.udegree, self.vdegree),
+                        extrapolate=False)
+        h = spl(uv)
+        if self.weights is None:
+            return h
+        return h[:, :-1] / h[:, -1:]
+
+
+@dataclass(frozen=True)
+class Coedge:
+    """One use of an edge by a face: the edge, its sense in the loop and its pcurve.
+
+    edge : index into ``Model.edges``
+    reversed : the coedge runs from the edge's last parameter to its first
+    pcurve : 2D curve in the face's (u, v) domain, parameterized like the edge's 3D curve
+    first, last : parameter range of the pcurve (equal to the edge's range when same-parameter)
+    """
+
+    edge: int
+    reversed: bool
+    pcurve: BSplineCurve | None
+    first: float
+    last: float
+
+
+@dataclass(frozen=True)
+class Loop:
+    """A closed chain of coedges. ``outer`` marks the outer loop of a face."""
+
+    coedges: tuple[Coedge, ...]
+    outer: bool
+
+
+@dataclass(frozen=True)
+class Face:
+    """A trimmed face: surface (as converted to B-spline), orientation and trimming loops.
+
+    surface_type : the kernel type before conversion, e.g. "Plane", "BSpline", "Cylindrical"
+    reversed : the face's normal is opposite to the surface normal
+    approximation : deviation bound when the surface could only be approximated (offset
+        surfaces), else 0.0
+    uv_bounds : (u0, u1, v0, v1) of the trimmed region
+    """
+
+    index: int
+    surface: BSplineSurface
+    surface_type: str
+    reversed: bool
+    loops: tuple[Loop, ...]
+    uv_bounds: tuple[float, float, float, float]
+    approximation: float = 0.0
+
+
+@dataclass(frozen=True)
+class Edge:
+    """An edge of the model.
+
+    curve : its 3D curve as a B-spline, None for degenerated edges (poles)
+    first, last : parameter range
+    tolerance : the kernel's edge tolerance
+    vertices : (start, end) indices into ``Model.vertices``
+    faces : indices of the faces that use it (a seam lists its face once)
+    seam : closed on one of its faces (used twice by that face)
+    degenerate : collapsed to a point (a pole)
+    """
+
+    index: int
+    curve: BSplineCurve | None
+    first: float
+    last: float
+    tolerance: float
+    vertices: tuple[int, int]
+    faces: tuple[int, ...]
+    seam: bool
+    degenerate: bool
+
+    @property
+    def uses(self) -> int:
+        """How many face sides use the edge: 1 free, 2 manifold, more non-manifold."""
+        return len(self.faces) + (1 if self.seam else 0)
+
+
+@dataclass
+class SewingInfo:
+    """What sewing did to an unconnected input."""
+
+    tolerance: float
+    free_edges_before: int
+    free_edges_after: int
+    edges_joined: int
+    max_join_distance: float
+    input_max_gap: float = 0.0  # largest C vs S(pc) gap of the faces as read, before sewing
+
+
+@dataclass
+class Model:
+    """A whole model as arrays.
+
+    vertices : (k, 3) float
+    diagonal : bounding-box diagonal of the input shape
+    """
+
+    path: str
+    faces: list[Face]
+    edges: list[Edge]
+    vertices: np.ndarray
+    diagonal: float
+    solids: int
+    shells: int
+    units: str = "mm"
+    sewing: SewingInfo | None = None
+    notes: list[str] = field(default_factory=list)
+
+    def surface_types(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for f in self.faces:
+            out[f.surface_type] = out.get(f.surface_type, 0) + 1
+        return dict(sorted(out.items(), key=lambda kv: (-kv[1], kv[0])))
