@@ -81,7 +81,8 @@ def _run_guarded(fn, path: str):
         if os.environ.get("WATERTIGHT_DEBUG"):
             raise
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        return None, f"{path}: internal error ({type(exc).__name__}: {reason}); set WATERTIGHT_DEBUG=1 for details"
+        return None, (f"{path}: internal error ({type(exc).__name__}: {reason}); "
+                      "set WATERTIGHT_DEBUG=1 for details")
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
@@ -137,7 +138,7 @@ def report(models, as_json, max_gap, samples, quiet):
     if as_json:
         from .report import SCHEMA_VERSION
 
-        payload = [o.report if o.report else {"schema_version": SCHEMA_VERSION, "file": o.path, "error": o.error}
+        payload = [o.report or {"schema_version": SCHEMA_VERSION, "file": o.path, "error": o.error}
                    for o in run.outcomes]
         doc = payload[0] if len(payload) == 1 else {"schema_version": SCHEMA_VERSION, "files": payload}
         sys.stdout.write(json.dumps(doc, indent=1) + "\n")

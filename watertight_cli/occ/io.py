@@ -169,6 +169,8 @@ def write_shape(shape: TopoDS_Shape, path: str | Path, overwrite: bool = True) -
             if fmt == "step":
                 writer = STEPControl_Writer()
                 Interface_Static.SetIVal_s("write.step.schema", 4)  # AP214
+                # a fixed product name: OCCT's default carries a per-process counter (I6)
+                Interface_Static.SetCVal_s("write.step.product.name", path.stem)
                 ok = writer.Transfer(shape, STEPControl_AsIs) == IFSelect_RetDone
                 ok = ok and writer.Write(tmp) == IFSelect_RetDone
             else:
@@ -177,7 +179,7 @@ def write_shape(shape: TopoDS_Shape, path: str | Path, overwrite: bool = True) -
                 ok = writer.AddShape(shape) and writer.Write(tmp)
         if not ok or os.path.getsize(tmp) == 0:
             raise OutputError(path, f"the kernel failed to write {fmt.upper()}")
-        _normalise_header(tmp, fmt)
+        _normalise_header(tmp, fmt, path.name)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -185,14 +187,22 @@ def write_shape(shape: TopoDS_Shape, path: str | Path, overwrite: bool = True) -
         raise
 
 
-def _normalise_header(tmp: str, fmt: str) -> None:
-    """Make output bytes depend on the input only: drop the time stamp OCCT writes (invariant I6)."""
+def _normalise_header(tmp: str, fmt: str, name: str) -> None:
+    """Make output bytes depend on the input only (invariant I6).
+
+    OCCT writes the temporary file's name and the current time into the STEP header; put the
+    final name and a fixed time stamp there instead.
+    """
     if fmt != "step":
         return
     import re
 
     with open(tmp, "rb") as fh:
         data = fh.read()
-    data = re.sub(rb"(FILE_NAME\('[^']*',)'[^']*'", rb"\1'2000-01-01T00:00:00'", data, count=1)
+    safe = name.replace("'", "").encode("utf-8", "replace")
+    data = re.sub(rb"FILE_NAME\('[^']*','[^']*'",
+                  b"FILE_NAME('" + safe.replace(b"\\", b"") + b"','2000-01-01T00:00:00'", data, count=1)
+    # OCCT appends a per-process counter to the product name ("part 1", "part 2", ...)
+    data = re.sub(rb"PRODUCT\('([^']*) \d+','\1 \d+'", rb"PRODUCT('\1','\1'", data)
     with open(tmp, "wb") as fh:
         fh.write(data)

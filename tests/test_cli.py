@@ -1,0 +1,118 @@
+"""CLI behaviour: exit codes, one-line errors, --json, --help."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from click.testing import CliRunner
+
+from watertight_cli.cli import EXIT_FAILED, EXIT_GATE, EXIT_OK, EXIT_USAGE, main
+
+from .conftest import FIXTURES, fixture_path
+
+
+def run(*args):
+    return CliRunner().invoke(main, list(args), catch_exceptions=False)
+
+
+def one_line_error(result, name: str):
+    assert "Traceback" not in result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith("watertight: error:")]
+    assert len(errors) == 1, result.output
+    assert name in errors[0]
+    return errors[0]
+
+
+@pytest.mark.parametrize("name, reason", [
+    ("empty.step", "empty file"),
+    ("garbage.step", "not a STEP file"),
+    ("truncated.step", "truncated STEP file"),
+    ("unknown.xyz", "unknown file type"),
+])
+def test_bad_input_one_line(name, reason):
+    path = fixture_path(f"broken/{name}")
+    result = run("report", str(path))
+    assert result.exit_code == EXIT_FAILED
+    assert reason in one_line_error(result, name)
+
+
+def test_missing_file(tmp_path):
+    result = run("report", str(tmp_path / "nope.step"))
+    assert result.exit_code == EXIT_FAILED
+    assert "no such file" in one_line_error(result, "nope.step")
+
+
+def test_folder_is_not_a_model(tmp_path):
+    d = tmp_path / "dir.step"
+    d.mkdir()
+    result = run("report", str(d))
+    assert result.exit_code in (EXIT_FAILED, EXIT_USAGE)
+    assert "Traceback" not in result.output
+
+
+def test_garbage_iges(tmp_path):
+    bad = tmp_path / "bad.igs"
+    bad.write_text("hello\n")
+    result = run("report", str(bad))
+    assert result.exit_code == EXIT_FAILED
+    assert "not an IGES file" in one_line_error(result, "bad.igs")
+
+
+def test_truncated_iges(tmp_path):
+    src = fixture_path("loft_minus_cylinder.igs").read_bytes()
+    bad = tmp_path / "cut.igs"
+    bad.write_bytes(src[: len(src) // 2])
+    result = run("report", str(bad))
+    assert result.exit_code == EXIT_FAILED
+    assert "truncated IGES" in one_line_error(result, "cut.igs")
+
+
+def test_report_json_schema():
+    result = CliRunner().invoke(main, ["report", "--json", "-q", str(fixture_path("open_sheet.step"))])
+    assert result.exit_code == EXIT_OK, result.output
+    doc = json.loads(result.stdout)
+    assert doc["schema_version"] == 1
+    for key in ("faces", "surface_types", "trimmed_faces", "edges", "free_edges", "nonmanifold_edges",
+                "solids", "shells", "diagonal", "gap", "edge_gaps", "sewing", "timing_s"):
+        assert key in doc
+    assert doc["free_edges"] == 6 and doc["solids"] == 0
+    gaps = [e["gap"] for e in doc["edge_gaps"]]
+    assert gaps == sorted(gaps, reverse=True)  # worst first
+
+
+def test_json_stdout_is_clean_with_several_files():
+    files = [str(fixture_path("sphere.step")), str(FIXTURES / "broken" / "empty.step")]
+    result = CliRunner().invoke(main, ["report", "--json", *files])
+    assert result.exit_code == EXIT_FAILED
+    doc = json.loads(result.stdout)
+    assert [("error" in f) for f in doc["files"]] == [False, True]
+
+
+def test_gate_exit_code():
+    result = run("report", "-q", "--max-gap", "1e-30", str(fixture_path("loft_minus_cylinder.step")))
+    assert result.exit_code == EXIT_GATE
+    assert "exceeds --max-gap" in result.output
+
+
+def test_usage_error_exit_code():
+    result = CliRunner().invoke(main, ["report", "--samples", "1", "x.step"])
+    assert result.exit_code == EXIT_USAGE
+
+
+def test_every_command_has_help():
+    assert run("--help").exit_code == 0
+    for name, cmd in main.commands.items():
+        result = run(name, "--help")
+        assert result.exit_code == 0
+        assert cmd.help and len(cmd.help) > 40, name
+        assert "Exit codes" in result.output
+
+
+def test_help_does_not_import_the_kernel():
+    code = ("import sys; from watertight_cli.cli import main; "
+            "assert not any(m.startswith('OCP') for m in sys.modules), 'OCP imported'")
+    subprocess.run([sys.executable, "-c", code], check=True)

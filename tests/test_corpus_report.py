@@ -1,0 +1,36 @@
+"""`watertight report` on real files agrees with the independent checker's published figures.
+
+The corpus README lists, per file, the max gap and free-edge count measured by
+``shared/tools/judge.py``; the report must agree within a factor of 2 (or both be below
+1e-9 x diagonal). Skips when ../shared/corpus is missing.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from watertight_cli.inspect import inspect
+from watertight_cli.report import input_report
+
+from .conftest import corpus_files, corpus_path, corpus_table
+
+TABLE = corpus_table()
+
+
+@pytest.mark.parametrize("name", corpus_files() or ["(corpus missing)"])
+def test_report_agrees_with_checker(name, tol):
+    path = corpus_path(name)
+    expected = TABLE.get(name)
+    if expected is None:
+        pytest.skip(f"{name} not in the corpus table")
+    r = input_report(inspect(str(path), tol))
+    ours, theirs, diag = r["gap"]["max"], expected["max_gap"], r["diagonal"]
+    assert r["faces"] == expected["faces"]
+    assert abs(diag - expected["diag"]) <= 0.01 * expected["diag"]
+    both_tiny = ours < 1e-9 * diag and theirs < 1e-9 * diag
+    # the table rounds to 2 significant digits; allow for that on top of the factor of 2
+    assert both_tiny or (theirs / 2.1 <= ours <= 2.1 * theirs), (ours, theirs)
+    if r["sewing"] is None:
+        assert r["free_edges"] == expected["free"]
+    else:  # sewing can only recover adjacency
+        assert r["free_edges"] <= expected["free"]

@@ -1,0 +1,141 @@
+"""Reading, extraction to arrays, round trips and writing through OCP."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import numpy as np
+import pytest
+
+from watertight_cli.errors import InputError, OutputError
+from watertight_cli.inspect import inspect
+
+from .conftest import fixture_models, fixture_path
+
+
+@pytest.fixture(scope="module")
+def loft(tol):
+    return inspect(str(fixture_path("loft_minus_cylinder.step")), tol)
+
+
+def test_every_fixture_reads_and_measures(tol):
+    for name in fixture_models():
+        ins = inspect(str(fixture_path(name)), tol)
+        assert ins.model.faces, name
+        assert all(f.surface.poles.ndim == 3 for f in ins.model.faces)
+
+
+def test_surface_round_trip(loft):
+    """arrays -> Geom_BSplineSurface -> arrays reproduces the surface to 1e-12."""
+    from watertight_cli.occ.extract import surface_arrays, surface_from_arrays
+
+    for face in loft.model.faces:
+        s = face.surface
+        back = surface_arrays(surface_from_arrays(s))
+        assert np.array_equal(back.uknots, s.uknots) and np.array_equal(back.vknots, s.vknots)
+        u0, u1, v0, v1 = s.domain
+        g = np.random.default_rng(0).random((200, 2)) * [u1 - u0, v1 - v0] + [u0, v0]
+        scale = np.abs(s.poles).max()
+        assert np.abs(back.evaluate(g) - s.evaluate(g)).max() <= 1e-12 * scale
+        # and the arrays evaluate like the kernel does
+        geom = surface_from_arrays(s)
+        kernel = np.array([geom.Value(u, v).Coord() for u, v in g])
+        assert np.abs(kernel - s.evaluate(g)).max() <= 1e-12 * scale
+
+
+def test_curve_round_trip(loft):
+    from watertight_cli.occ.extract import curve_arrays, curve_from_arrays
+
+    for e in loft.model.edges:
+        if e.curve is None:
+            continue
+        geom = curve_from_arrays(e.curve)
+        back = curve_arrays(geom)
+        t = np.linspace(e.first, e.last, 50)
+        kernel = np.array([geom.Value(x).Coord() for x in t])
+        assert np.abs(kernel - e.curve.evaluate(t)).max() <= 1e-12 * max(1.0, np.abs(e.curve.poles).max())
+        assert np.allclose(back.poles, e.curve.poles, rtol=0, atol=0)
+
+
+def test_intersection_pcurves_are_high_degree(loft):
+    """The loft/cylinder intersection gives the degree-8 pcurves stage 1 must handle."""
+    degrees = [ce.pcurve.degree for f in loft.model.faces for lp in f.loops for ce in lp.coedges
+               if f.surface_type == "BSpline" and ce.pcurve is not None]
+    assert max(degrees) >= 6
+
+
+def test_topology_of_fixtures(tol):
+    sphere = inspect(str(fixture_path("sphere.step")), tol).model
+    assert sum(e.degenerate for e in sphere.edges) == 2  # two poles
+    assert sum(e.seam for e in sphere.edges) == 1
+    two = inspect(str(fixture_path("two_solids.step")), tol).model
+    assert two.solids == 2
+    holes = inspect(str(fixture_path("plate_with_holes.step")), tol).model
+    assert max(len(f.loops) for f in holes.faces) >= 3
+    sheet = inspect(str(fixture_path("open_sheet.step")), tol).model
+    assert sheet.solids == 0 and sum(e.uses == 1 for e in sheet.edges if not e.degenerate) == 6
+
+
+def test_unconnected_iges_is_sewn(tol):
+    ins = inspect(str(fixture_path("open_sheet_144.igs")), tol)
+    s = ins.model.sewing
+    assert s is not None
+    assert s.free_edges_before == 8 and s.free_edges_after == 6  # the shared edge is recovered
+    assert s.max_join_distance < 1e-9 * ins.model.diagonal
+
+
+def test_gaps_agree_with_arrays_on_bspline_faces(loft):
+    """Kernel samples and array samples measure the same boundary geometry (within conversion)."""
+    kernel = max(g.gap for g in loft.gaps)
+    arrays = max(g.gap for g in loft.array_gaps)
+    assert arrays <= 2 * kernel + 1e-9 * loft.model.diagonal
+
+
+def test_write_is_atomic_and_deterministic(tmp_path):
+    from watertight_cli.occ.io import read_shape, write_shape
+
+    shape = read_shape(fixture_path("loft_minus_cylinder.step")).shape
+    digests = []
+    for sub in ("one", "two"):
+        (tmp_path / sub).mkdir()
+        write_shape(shape, tmp_path / sub / "a.step")
+        digests.append(hashlib.sha256((tmp_path / sub / "a.step").read_bytes()).hexdigest())
+        assert os.listdir(tmp_path / sub) == ["a.step"]  # no temp files left behind
+    assert digests[0] == digests[1]
+    assert b"FILE_NAME('a.step'" in (tmp_path / "one" / "a.step").read_bytes()
+    write_shape(shape, tmp_path / "a.step")
+    write_shape(shape, tmp_path / "b.step")
+    write_shape(shape, tmp_path / "c.igs")
+    assert read_shape(tmp_path / "c.igs").shape is not None
+    with pytest.raises(OutputError, match="exists"):
+        write_shape(shape, tmp_path / "a.step", overwrite=False)
+    with pytest.raises(OutputError, match="unknown file type"):
+        write_shape(shape, tmp_path / "d.obj")
+    assert sorted(os.listdir(tmp_path)) == ["a.step", "b.step", "c.igs", "one", "two"]
+
+
+def test_failed_write_leaves_nothing(tmp_path, monkeypatch):
+    from watertight_cli.occ import io
+
+    shape = io.read_shape(fixture_path("sphere.step")).shape
+
+    def boom(*a, **k):
+        raise OutputError(tmp_path / "x.step", "simulated failure")
+
+    monkeypatch.setattr(io, "_normalise_header", boom)
+    with pytest.raises(OutputError):
+        io.write_shape(shape, tmp_path / "x.step")
+    assert os.listdir(tmp_path) == []
+
+
+def test_input_never_modified(tol, tmp_path):
+    src = fixture_path("filleted_freeform.step")
+    before = hashlib.sha256(src.read_bytes()).hexdigest()
+    inspect(str(src), tol)
+    assert hashlib.sha256(src.read_bytes()).hexdigest() == before
+
+
+def test_missing_input_raises_domain_error(tmp_path, tol):
+    with pytest.raises(InputError, match="no such file"):
+        inspect(str(tmp_path / "x.stp"), tol)
