@@ -163,7 +163,8 @@ def _compose(ctrl: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
     x1, x2 = bu.shape[-2:]  # (m a + 1, m b + 1)
     y1, y2 = bv.shape[-2:]  # (n c + 1, n e + 1)
     ds, dt = x1 + y1 - 2, x2 + y2 - 2
-    batch = np.broadcast_shapes(ctrl.shape[:-3], U.shape[:-2], V.shape[:-2])
+    lead = (ctrl.shape[:-3], U.shape[:-2], V.shape[:-2])
+    batch = np.broadcast_shapes(*lead) if any(lead) else ()
     # W[..., k, (c, j), l] = sum_i BU_i[k, l] P_ij[c]
     w = _tail_transpose(ctrl.reshape(ctrl.shape[:-3] + (m + 1, (n + 1) * d)), (1, 0)) @ bu.reshape(
         bu.shape[:-2] + (x1 * x2,)
