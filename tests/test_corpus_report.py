@@ -23,7 +23,8 @@ def test_report_agrees_with_checker(name, tol):
     expected = TABLE.get(name)
     if expected is None:
         pytest.skip(f"{name} not in the corpus table")
-    r = input_report(inspect(str(path), tol))
+    ins = inspect(str(path), tol)
+    r = input_report(ins)
     ours, theirs, diag = r["gap"]["max"], expected["max_gap"], r["diagonal"]
     assert r["faces"] == expected["faces"]
     assert abs(diag - expected["diag"]) <= 0.01 * expected["diag"]
@@ -34,3 +35,7 @@ def test_report_agrees_with_checker(name, tol):
         assert r["free_edges"] == expected["free"]
     else:  # sewing can only recover adjacency
         assert r["free_edges"] <= expected["free"]
+    # the arrays the pipeline works on describe the same boundaries as the kernel does
+    kernel = {g.edge: g.gap for g in ins.gaps}
+    worst = max(abs(g.gap - kernel[g.edge]) for g in ins.array_gaps)
+    assert worst <= 1e-9 * diag, worst

@@ -55,7 +55,7 @@ def inspect(path: str, tol: Tolerances) -> Inspection:
     clock.lap("sew")
     tracks = sample_tracks(shape, tol.gap_samples)
     clock.lap("sample")
-    model, _ = build_model(shape, read, diag, sewing, str(path), tol)
+    model = build_model(shape, read, diag, sewing, str(path), tol)
     clock.lap("arrays")
     gaps = edge_gaps(model, tracks)
     array_gaps = edge_gaps(model, model_tracks(model, tol))

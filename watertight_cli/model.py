@@ -59,10 +59,13 @@ class BSplineCurve:
         return _homogeneous(self.poles, self.weights)
 
     def evaluate(self, t: np.ndarray) -> np.ndarray:
-        """Points at parameters ``t`` (k,) -> (k, d). Parameters are clipped to the domain."""
-        a, b = self.domain
-        t = np.clip(np.asarray(t, dtype=float), a, b)
-        h = BSpline(self.knots, self.homogeneous(), self.degree, extrapolate=False)(t)
+        """Points at parameters ``t`` (k,) -> (k, d).
+
+        Outside the domain the end spans' polynomials are extended, as OCCT does: real files
+        have pcurves that run slightly past their surface's knot range.
+        """
+        t = np.asarray(t, dtype=float)
+        h = BSpline(self.knots, self.homogeneous(), self.degree, extrapolate=True)(t)
         if self.weights is None:
             return h
         return h[:, :-1] / h[:, -1:]
@@ -104,12 +107,10 @@ class BSplineSurface:
         return _homogeneous(self.poles, self.weights)
 
     def evaluate(self, uv: np.ndarray) -> np.ndarray:
-        """Points at parameter pairs ``uv`` (k, 2) -> (k, 3). Parameters are clipped to the domain."""
-        u0, u1, v0, v1 = self.domain
+        """Points at parameter pairs ``uv`` (k, 2) -> (k, 3); end spans extend past the domain."""
         uv = np.asarray(uv, dtype=float).reshape(-1, 2)
-        uv = np.column_stack([np.clip(uv[:, 0], u0, u1), np.clip(uv[:, 1], v0, v1)])
         spl = NdBSpline((self.uknots, self.vknots), self.homogeneous(), (self.udegree, self.vdegree),
-                        extrapolate=False)
+                        extrapolate=True)
         h = spl(uv)
         if self.weights is None:
             return h
@@ -147,8 +148,9 @@ class Face:
 
     surface_type : the kernel type before conversion, e.g. "Plane", "BSpline", "Cylindrical"
     reversed : the face's normal is opposite to the surface normal
-    approximation : deviation bound when the surface could only be approximated (offset
-        surfaces), else 0.0
+    approximation : error bound of the B-spline form of the face (surface and pcurves), 0.0
+        when exact; surfaces with angular parameters (cylinder, cone, sphere, torus) and conic
+        pcurves are approximated in their own parameterization
     uv_bounds : (u0, u1, v0, v1) of the trimmed region
     """
 
@@ -183,6 +185,7 @@ class Edge:
     faces: tuple[int, ...]
     seam: bool
     degenerate: bool
+    approximation: float = 0.0  # error bound of the B-spline form of the 3D curve (conics)
 
     @property
     def uses(self) -> int:

@@ -62,8 +62,11 @@ def input_report(ins: Inspection) -> dict:
             "samples_per_edge": ins.samples,
         },
         "conversion": {
-            "note": "gaps of the B-spline arrays the pipeline works on (after NURBS conversion)",
+            "note": "the B-spline arrays the pipeline works on: their gaps, and the error bound of "
+                    "faces and curves that had to be approximated in their own parameterization",
             "max_gap": max((g.gap for g in ins.array_gaps), default=0.0),
+            "max_approximation": max([f.approximation for f in m.faces]
+                                     + [e.approximation for e in m.edges], default=0.0),
         },
         "edge_gaps": [
             {"edge": g.edge, "faces": list(g.faces), "uses": g.uses, "gap": g.gap,

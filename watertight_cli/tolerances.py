@@ -24,6 +24,11 @@ class Tolerances:
         manufacturing and meshing resolve, and ten times above OCCT's default confusion
         tolerance (1e-7 absolute in mm models), so approximations are never confused with exact
         data.
+    convert_rel:
+        Accuracy of the B-spline form of surfaces and curves that have no exact B-spline form in
+        their own parameterization (angular parameters of cylinders, cones, spheres, tori,
+        circles): 1e-10 of the diagonal, ten times below ``exact_rel`` so that stage 1 can still
+        claim exactness at 1e-9.
     exact_rel:
         What counts as exact: 1e-9 of the diagonal (invariant I4, stage 1 deviation).
     watertight_rel:
@@ -42,6 +47,7 @@ class Tolerances:
 
     gap_samples: int = 33
     approx_rel: float = 1e-6
+    convert_rel: float = 1e-10
     exact_rel: float = 1e-9
     watertight_rel: float = 1e-12
     sew_max_rel: float = 2e-2

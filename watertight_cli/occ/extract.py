@@ -2,9 +2,12 @@
 
 Steps:
 1. sew when the faces are not connected (IGES 144 trimmed surfaces, STEP surface models);
-2. convert every face to B-spline geometry with ``BRepBuilderAPI_NurbsConvert`` (exact for
-   analytic surfaces, surfaces of revolution and of extrusion; it keeps 3D curves and pcurves
-   same-parameter) and approximate what stays non-B-spline (offset surfaces), recording the bound;
+2. convert every surface, pcurve and 3D curve to B-spline *in its own parameterization*, so
+   that pcurves stay valid on their surfaces and same-parameter with their edges (exact where
+   a conversion keeps the parameter, else approximated within ``Tolerances.convert_rel`` with the
+   error recorded). ``BRepBuilderAPI_NurbsConvert`` is not used: on OCCT 7.9 it breaks seam
+   pcurves (ec_turbine-A: 39 mm) and moves pcurves of revolved faces by up to 1e-4 of the
+   diagonal (wing_fuselage: 0.1 mm);
 3. read surfaces, pcurves, 3D curves, loops and incidence into numpy arrays.
 """
 
@@ -16,7 +19,7 @@ import numpy as np
 from OCP.Bnd import Bnd_Box
 from OCP.BRep import BRep_Tool
 from OCP.BRepBndLib import BRepBndLib
-from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert, BRepBuilderAPI_Sewing
+from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
 from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
 from OCP.Geom import (
     Geom_BSplineCurve,
@@ -25,9 +28,9 @@ from OCP.Geom import (
     Geom_TrimmedCurve,
 )
 from OCP.Geom2d import Geom2d_BSplineCurve, Geom2d_TrimmedCurve
-from OCP.Geom2dConvert import Geom2dConvert
+from OCP.Geom2dConvert import Geom2dConvert, Geom2dConvert_ApproxCurve
 from OCP.GeomAbs import GeomAbs_C2
-from OCP.GeomConvert import GeomConvert, GeomConvert_ApproxSurface
+from OCP.GeomConvert import GeomConvert, GeomConvert_ApproxCurve, GeomConvert_ApproxSurface
 from OCP.TColgp import TColgp_Array1OfPnt, TColgp_Array2OfPnt
 from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal, TColStd_Array2OfReal
 from OCP.TopAbs import (
@@ -167,16 +170,156 @@ def curve_arrays(c) -> BSplineCurve:
     return BSplineCurve(c.Degree(), _arr1(k), poles, weights)
 
 
-def _bspline_3d(curve, first: float, last: float) -> Geom_BSplineCurve:
+# Conversions keep the kernel's parameterization: pcurves and 3D curves stay same-parameter, and
+# pcurves stay valid on converted surfaces. Exact conversions are used where they keep it (lines,
+# Bezier, planes, extrusions); conics and elementary surfaces with angular parameters have no
+# rational form in their angle, so they are approximated in their own parameterization, with the
+# error measured and recorded.
+
+_FIT_DEGREE = 11
+_FIT_SEGMENTS = 400
+
+
+def _keeps_parameter(original, converted, params, tolerance: float) -> bool:
+    for w in params:
+        if original.Value(*w).Distance(converted.Value(*w)) > tolerance:
+            return False
+    return True
+
+
+def _unroll_curve(c, first: float, last: float):
+    """A periodic B-spline used past its first period: the same curve segmented to [first, last].
+
+    Unperiodizing alone keeps only the first period; extending its end spans is not the same
+    curve. Segmenting by knot insertion is exact.
+    """
+    if not c.IsPeriodic():
+        return c
+    a, b = c.FirstParameter(), c.LastParameter()
+    eps = 1e-12 * max(1.0, b - a)
+    if first >= a - eps and last <= b + eps:
+        return c
+    c = c.Copy()
+    c.Segment(first, last)
+    return c
+
+
+def _unroll_surface(s: Geom_BSplineSurface, bounds) -> Geom_BSplineSurface:
+    """The surface analogue of ``_unroll_curve`` for faces that run across a periodic knot range."""
+    if not (s.IsUPeriodic() or s.IsVPeriodic()):
+        return s
+    su0, su1, sv0, sv1 = s.Bounds()
+    u0, u1, v0, v1 = bounds
+    eu, ev = 1e-12 * max(1.0, su1 - su0), 1e-12 * max(1.0, sv1 - sv0)
+    cut_u = s.IsUPeriodic() and (u0 < su0 - eu or u1 > su1 + eu)
+    cut_v = s.IsVPeriodic() and (v0 < sv0 - ev or v1 > sv1 + ev)
+    if not (cut_u or cut_v):
+        return s
+    s = s.Copy()
+    s.Segment(u0 if cut_u else su0, u1 if cut_u else su1, v0 if cut_v else sv0, v1 if cut_v else sv1)
+    return s
+
+
+def curve_3d(curve, first: float, last: float, tolerance: float) -> tuple[Geom_BSplineCurve, float]:
+    """A 3D curve as a B-spline in its own parameter on [first, last]; (curve, error bound)."""
     if isinstance(curve, Geom_BSplineCurve):
-        return curve
-    return GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(curve, first, last))
+        return _unroll_curve(curve, first, last), 0.0
+    trimmed = Geom_TrimmedCurve(curve, first, last)
+    ws = [(w,) for w in np.linspace(first, last, 13)[1:-1]]
+    try:
+        exact = GeomConvert.CurveToBSplineCurve_s(trimmed)
+        if _keeps_parameter(curve, exact, ws, 1e-3 * tolerance):
+            return exact, 0.0
+    except Exception:  # noqa: BLE001 - fall through to the approximation
+        pass
+    approx = GeomConvert_ApproxCurve(trimmed, tolerance, GeomAbs_C2, _FIT_SEGMENTS, _FIT_DEGREE)
+    if not approx.HasResult():
+        raise KernelError(f"cannot convert a {type(curve).__name__} to B-spline")
+    return approx.Curve(), float(approx.MaxError())
 
 
-def _bspline_2d(curve, first: float, last: float) -> Geom2d_BSplineCurve:
+def curve_2d(curve, first: float, last: float, tolerance: float) -> tuple[Geom2d_BSplineCurve, float]:
+    """A pcurve as a 2D B-spline in its own parameter on [first, last]; (curve, error bound)."""
     if isinstance(curve, Geom2d_BSplineCurve):
-        return curve
-    return Geom2dConvert.CurveToBSplineCurve_s(Geom2d_TrimmedCurve(curve, first, last))
+        return _unroll_curve(curve, first, last), 0.0
+    trimmed = Geom2d_TrimmedCurve(curve, first, last)
+    ws = [(w,) for w in np.linspace(first, last, 13)[1:-1]]
+    try:
+        exact = Geom2dConvert.CurveToBSplineCurve_s(trimmed)
+        if _keeps_parameter(curve, exact, ws, 1e-3 * tolerance):
+            return exact, 0.0
+    except Exception:  # noqa: BLE001
+        pass
+    approx = Geom2dConvert_ApproxCurve(trimmed, tolerance, GeomAbs_C2, _FIT_SEGMENTS, _FIT_DEGREE)
+    if not approx.HasResult():
+        raise KernelError(f"cannot convert a 2D {type(curve).__name__} to B-spline")
+    return approx.Curve(), float(approx.MaxError())
+
+
+def _aligned(a: float, b: float, lo: float, hi: float) -> float:
+    """The shift that moves domain [a, b] onto [lo, hi].
+
+    Trimming a periodic kernel curve or surface normalizes its parameters into the first period
+    (a circle trimmed to [-pi/2, pi/2] comes back on [3pi/2, 5pi/2]); shifting the knots back by
+    whole periods restores the parameterization the pcurves and edges use.
+    """
+    if abs(a - lo) <= 1e-12 * max(1.0, abs(lo)) or abs((b - a) - (hi - lo)) > 1e-9 * max(1.0, hi - lo):
+        return 0.0
+    return lo - a
+
+
+def align_curve(c: BSplineCurve, first: float, last: float) -> BSplineCurve:
+    shift = _aligned(*c.domain, first, last)
+    return c if shift == 0.0 else BSplineCurve(c.degree, c.knots + shift, c.poles, c.weights)
+
+
+def align_surface(s: BSplineSurface, box) -> BSplineSurface:
+    u0, u1, v0, v1 = s.domain
+    du, dv = _aligned(u0, u1, box[0], box[1]), _aligned(v0, v1, box[2], box[3])
+    if du == 0.0 and dv == 0.0:
+        return s
+    return BSplineSurface(s.udegree, s.vdegree, s.uknots + du, s.vknots + dv, s.poles, s.weights)
+
+
+def surface_bspline(surf, bounds, tolerance: float) -> tuple[Geom_BSplineSurface, float]:
+    """A surface as a B-spline in its own parameters over ``bounds``; (surface, error bound).
+
+    B-splines are kept; other surfaces are converted exactly when the conversion keeps the
+    parameterization (planes, extrusions, Bezier), else approximated over the face's domain so
+    that the face's pcurves stay valid (cylinders, cones, spheres, tori, revolutions in angle,
+    offsets).
+    """
+    if isinstance(surf, Geom_BSplineSurface):
+        return _unroll_surface(surf, bounds), 0.0
+    u0, u1, v0, v1 = _pad(surf, bounds)
+    trimmed = Geom_RectangularTrimmedSurface(surf, u0, u1, v0, v1)
+    rng = np.random.default_rng(7)  # fixed: the same input gives the same output
+    probes = [(u0 + a * (u1 - u0), v0 + b * (v1 - v0)) for a, b in rng.random((24, 2))]
+    try:
+        exact = GeomConvert.SurfaceToBSplineSurface_s(trimmed)
+        if _keeps_parameter(surf, exact, probes, 1e-3 * tolerance):
+            return exact, 0.0
+    except Exception:  # noqa: BLE001 - e.g. Convert_TorusToBSplineSurface on a full torus
+        pass
+    approx = GeomConvert_ApproxSurface(trimmed, tolerance, GeomAbs_C2, GeomAbs_C2, _FIT_DEGREE, _FIT_DEGREE,
+                                       _FIT_SEGMENTS, 1)
+    if not approx.HasResult():
+        raise KernelError(f"cannot convert a {type(surf).__name__} to B-spline")
+    return approx.Surface(), float(approx.MaxError())
+
+
+def _pad(surf, bounds):
+    """The face's parameter box, grown by 1e-7 of its size where the surface allows it."""
+    u0, u1, v0, v1 = bounds
+    su0, su1, sv0, sv1 = surf.Bounds()
+    du, dv = 1e-7 * (u1 - u0), 1e-7 * (v1 - v0)
+    if surf.IsUPeriodic():  # a trim wider than the period would wrap around: stay within it
+        du = max(0.0, min(du, (surf.UPeriod() - (u1 - u0)) / 2))
+        su0, su1 = -math.inf, math.inf
+    if surf.IsVPeriodic():
+        dv = max(0.0, min(dv, (surf.VPeriod() - (v1 - v0)) / 2))
+        sv0, sv1 = -math.inf, math.inf
+    return max(u0 - du, su0), min(u1 + du, su1), max(v0 - dv, sv0), min(v1 + dv, sv1)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -288,24 +431,6 @@ def sew(shape: TopoDS_Shape, diag: float, tol: Tolerances, path: str) -> tuple[T
 # the model
 
 
-def _to_nurbs(shape: TopoDS_Shape, path: str) -> tuple[TopoDS_Shape, BRepBuilderAPI_NurbsConvert]:
-    with quiet():
-        conv = BRepBuilderAPI_NurbsConvert(shape, True)
-    if not conv.IsDone():
-        raise KernelError(f"{path}: conversion to NURBS failed")
-    return conv.Shape(), conv
-
-
-def _approximate_surface(surf, bounds, tolerance: float) -> tuple[Geom_BSplineSurface, float]:
-    """Approximate a non-B-spline surface (offset surfaces) over the face's domain."""
-    u0, u1, v0, v1 = bounds
-    trimmed = Geom_RectangularTrimmedSurface(surf, u0, u1, v0, v1)
-    approx = GeomConvert_ApproxSurface(trimmed, tolerance, GeomAbs_C2, GeomAbs_C2, 9, 9, 200, 0)
-    if not approx.HasResult():
-        raise KernelError("surface approximation failed")
-    return approx.Surface(), float(approx.MaxError())
-
-
 def prepare(read: ReadResult, path: str, tol: Tolerances) -> tuple[TopoDS_Shape, float, SewingInfo | None]:
     """The shape the pipeline works on: the input, sewn when its faces are not connected."""
     shape = read.shape
@@ -358,67 +483,74 @@ def sample_tracks(shape: TopoDS_Shape, k: int) -> dict[int, tuple[np.ndarray | N
 
 
 def build_model(shape: TopoDS_Shape, read: ReadResult, diag: float, sewing: SewingInfo | None, path: str,
-                tol: Tolerances) -> tuple[Model, TopoDS_Shape]:
-    """The array model of a prepared shape, plus the NURBS-converted OCCT shape it describes.
+                tol: Tolerances) -> Model:
+    """The array model of a prepared shape.
 
-    Faces and edges keep the numbering of ``indexed(shape, ...)`` of the prepared shape, so
-    ``sample_tracks(shape)`` and the model agree on indices.
+    Faces and edges keep the numbering of ``indexed(shape, ...)``, so ``sample_tracks(shape)``
+    and the model agree on indices. Conversion tolerance: ``tol.convert_rel`` x diagonal.
     """
-    fmap0 = indexed(shape, TopAbs_FACE)
-    emap0 = indexed(shape, TopAbs_EDGE)
-    types = [surface_type_name(TopoDS.Face_s(fmap0.FindKey(i))) for i in range(1, fmap0.Extent() + 1)]
-    conv_shape, conv = _to_nurbs(shape, path)
-
-    fmap = TopTools_IndexedMapOfShape()
-    for i in range(1, fmap0.Extent() + 1):
-        fmap.Add(conv.ModifiedShape(fmap0.FindKey(i)))
-    emap = TopTools_IndexedMapOfShape()
-    for i in range(1, emap0.Extent() + 1):
-        emap.Add(conv.ModifiedShape(emap0.FindKey(i)))
-    if fmap.Extent() != fmap0.Extent() or emap.Extent() != emap0.Extent():
-        raise KernelError(f"{path}: conversion to NURBS changed the topology")
-    vmap = indexed(conv_shape, TopAbs_VERTEX)
-    e2f = edge_face_map(conv_shape)
+    fmap = indexed(shape, TopAbs_FACE)
+    emap = indexed(shape, TopAbs_EDGE)
+    vmap = indexed(shape, TopAbs_VERTEX)
+    e2f = edge_face_map(shape)
+    fit = tol.convert_rel * diag
 
     vertices = np.array([BRep_Tool.Pnt_s(TopoDS.Vertex_s(vmap.FindKey(i))).Coord()
                          for i in range(1, vmap.Extent() + 1)], dtype=float).reshape(-1, 3)
 
-    faces = [_face(TopoDS.Face_s(fmap.FindKey(fi)), fi - 1, types[fi - 1], emap, diag, tol)
-             for fi in range(1, fmap.Extent() + 1)]
+    faces = [_face(TopoDS.Face_s(fmap.FindKey(fi)), fi - 1, emap, fit) for fi in range(1, fmap.Extent() + 1)]
 
     edges: list[Edge] = []
     for ei in range(1, emap.Extent() + 1):
         e = TopoDS.Edge_s(emap.FindKey(ei))
         degenerate = BRep_Tool.Degenerated_s(e)
         first, last = BRep_Tool.Range_s(e)
-        curve = None
+        curve, error = None, 0.0
         if not degenerate:
             c = BRep_Tool.Curve_s(e, 0.0, 0.0)  # the 3-argument form applies the edge's location
             if c is not None:
-                curve = curve_arrays(_bspline_3d(c, first, last))
+                bs, error = curve_3d(c, first, last, fit)
+                curve = align_curve(curve_arrays(bs), first, last)
         inc = _unique_faces(e2f.FindFromKey(e)) if e2f.Contains(e) else []
         face_ids = tuple(sorted(fmap.FindIndex(f) - 1 for f in inc))
         seam = any(BRep_Tool.IsClosed_s(e, f) for f in inc)
         ends = (TopExp.FirstVertex_s(e), TopExp.LastVertex_s(e))
         vids = tuple(vmap.FindIndex(v) - 1 if not v.IsNull() else -1 for v in ends)
         edges.append(Edge(ei - 1, curve, first, last, BRep_Tool.Tolerance_s(e), vids, face_ids, seam,
-                          degenerate))
+                          degenerate, approximation=error))
 
-    model = Model(path=path, faces=faces, edges=edges, vertices=vertices, diagonal=diag,
-                  solids=count(shape, TopAbs_SOLID), shells=count(shape, TopAbs_SHELL),
-                  units=read.units, sewing=sewing)
-    return model, conv_shape
+    return Model(path=path, faces=faces, edges=edges, vertices=vertices, diagonal=diag,
+                 solids=count(shape, TopAbs_SOLID), shells=count(shape, TopAbs_SHELL),
+                 units=read.units, sewing=sewing)
 
 
-def _coedge(e, face, emap) -> Coedge:
+def _coedge(e, face, emap, surface, fit: float) -> tuple[Coedge, float]:
     first, last = BRep_Tool.Range_s(e, face)
     pc = BRep_Tool.CurveOnSurface_s(e, face, 0.0, 0.0)
-    pcurve = curve_arrays(_bspline_2d(pc, first, last)) if pc is not None else None
-    return Coedge(edge=emap.FindIndex(e) - 1, reversed=e.Orientation() == TopAbs_REVERSED,
-                  pcurve=pcurve, first=first, last=last)
+    if pc is None:
+        return Coedge(emap.FindIndex(e) - 1, e.Orientation() == TopAbs_REVERSED, None, first, last), 0.0
+    # parameter-space tolerance from the 3D one through the surface's largest speed
+    speed = _surface_speed(surface)
+    bs, err2d = curve_2d(pc, first, last, fit / speed)
+    return (Coedge(edge=emap.FindIndex(e) - 1, reversed=e.Orientation() == TopAbs_REVERSED,
+                   pcurve=align_curve(curve_arrays(bs), first, last), first=first, last=last), err2d * speed)
 
 
-def _face(face, index: int, stype: str, emap, diag: float, tol: Tolerances) -> Face:
+def _surface_speed(s: Geom_BSplineSurface) -> float:
+    """An upper bound of |dS/du|, |dS/dv| from the control net (hodograph bound), at least 1."""
+    a = surface_arrays(s) if not isinstance(s, BSplineSurface) else s
+    p, q = a.udegree, a.vdegree
+    du = np.diff(a.poles, axis=0) * p / np.maximum(
+        (a.uknots[p + 1:p + a.poles.shape[0]] - a.uknots[1:a.poles.shape[0]])[:, None, None], 1e-300)
+    dv = np.diff(a.poles, axis=1) * q / np.maximum(
+        (a.vknots[q + 1:q + a.poles.shape[1]] - a.vknots[1:a.poles.shape[1]])[None, :, None], 1e-300)
+    w = 1.0 if a.weights is None else float(a.weights.max() / a.weights.min()) ** 2
+    return max(1.0, w * float(max(np.linalg.norm(du, axis=-1).max(initial=0),
+                                  np.linalg.norm(dv, axis=-1).max(initial=0))))
+
+
+def _face(face, index: int, emap, fit: float) -> Face:
+    stype = surface_type_name(face)
     loc = TopLoc_Location()
     surf = BRep_Tool.Surface_s(face, loc)
     while isinstance(surf, Geom_RectangularTrimmedSurface):
@@ -426,31 +558,35 @@ def _face(face, index: int, stype: str, emap, diag: float, tol: Tolerances) -> F
     if not loc.IsIdentity():
         surf = surf.Transformed(loc.Transformation())
     bounds = BRepTools.UVBounds_s(face)
-    approx = 0.0
-    if not isinstance(surf, Geom_BSplineSurface):
-        surf, approx = _approximate_surface(surf, bounds, tol.approx_rel * diag)
-    arrays = surface_arrays(surf)
+    bs, approx = surface_bspline(surf, bounds, fit)
+    arrays = align_surface(surface_arrays(bs), _pad(surf, bounds)) if approx else surface_arrays(bs)
 
     loops = []
+    errors = [approx]
     outer = BRepTools.OuterWire_s(face)
     wires = indexed(face, TopAbs_WIRE)
     for wi in range(1, wires.Extent() + 1):
         wire = TopoDS.Wire_s(wires.FindKey(wi))
-        coedges = []
+        uses = []
         explorer = BRepTools_WireExplorer(wire, face)
         while explorer.More():
-            coedges.append(_coedge(explorer.Current(), face, emap))  # oriented as used in this wire
+            uses.append(explorer.Current())  # oriented as used in this wire
             explorer.Next()
-        if not coedges:  # wires the explorer cannot order (rare): fall back to storage order
+        if not uses:  # wires the explorer cannot order (rare): fall back to storage order
             exp = TopExp_Explorer(wire, TopAbs_EDGE)
             while exp.More():
-                coedges.append(_coedge(TopoDS.Edge_s(exp.Current()), face, emap))
+                uses.append(TopoDS.Edge_s(exp.Current()))
                 exp.Next()
+        coedges = []
+        for e in uses:
+            ce, err = _coedge(e, face, emap, arrays, fit)
+            coedges.append(ce)
+            errors.append(err)
         loops.append(Loop(tuple(coedges), outer=not outer.IsNull() and wire.IsSame(outer)))
     loops.sort(key=lambda lp: not lp.outer)
     return Face(index=index, surface=arrays, surface_type=stype,
                 reversed=face.Orientation() == TopAbs_REVERSED, loops=tuple(loops),
-                uv_bounds=tuple(float(x) for x in bounds), approximation=approx)
+                uv_bounds=tuple(float(x) for x in bounds), approximation=max(errors))
 
 
 __all__ = ["build_model", "surface_arrays", "surface_from_arrays", "curve_arrays", "curve_from_arrays",
