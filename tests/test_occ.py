@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from watertight_cli.errors import InputError, OutputError
-from watertight_cli.inspect import inspect
+from watertight_cli.inspect import inspect, trimmed
 
 from .conftest import fixture_models, fixture_path
 
@@ -76,8 +76,11 @@ def test_topology_of_fixtures(tol):
     sphere = inspect(str(fixture_path("sphere.step")), tol).model
     assert sum(e.degenerate for e in sphere.edges) == 2  # two poles
     assert sum(e.seam for e in sphere.edges) == 1
+    assert not trimmed(sphere.faces[0])  # a full sphere is its own parameter rectangle
     two = inspect(str(fixture_path("two_solids.step")), tol).model
     assert two.solids == 2
+    # two box faces with the hole, the pin's two round caps; rectangles and cylinders are not
+    assert sum(trimmed(f) for f in two.faces) == 4
     holes = inspect(str(fixture_path("plate_with_holes.step")), tol).model
     assert max(len(f.loops) for f in holes.faces) >= 3
     sheet = inspect(str(fixture_path("open_sheet.step")), tol).model

@@ -71,14 +71,16 @@ def inspect(path: str, tol: Tolerances) -> Inspection:
 
 
 def trimmed(face, rel: float = 1e-9) -> bool:
-    """True unless the face is bounded by its surface's natural boundary.
+    """True unless the face is a plain parameter rectangle of its surface.
 
-    A face is untrimmed when it has one loop and every pcurve lies on a side of the surface's
-    parameter rectangle (all its poles on one iso-line u = u0, u = u1, v = v0 or v = v1).
+    A face is untrimmed when it has one loop and every pcurve lies on a side of the face's own
+    parameter box (all its poles on one iso-line u = u0, u = u1, v = v0 or v = v1): such a face
+    needs no reparameterization, only a sub-box of its surface. A rectangular piece of a plane
+    or a full cylinder between two circles is untrimmed in this sense.
     """
     if len(face.loops) != 1:
         return True
-    u0, u1, v0, v1 = face.surface.domain
+    u0, u1, v0, v1 = face.uv_bounds
     eu, ev = rel * max(1.0, u1 - u0), rel * max(1.0, v1 - v0)
     for ce in face.loops[0].coedges:
         if ce.pcurve is None:
