@@ -21,6 +21,10 @@ import numpy as np
 from scipy.interpolate import BSpline, NdBSpline
 
 
+def _cartesian(h: np.ndarray, rational: bool) -> np.ndarray:
+    return h[:, :-1] / h[:, -1:] if rational else h
+
+
 def _homogeneous(poles: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
     if weights is None:
         return poles
@@ -66,9 +70,7 @@ class BSplineCurve:
         """
         t = np.asarray(t, dtype=float)
         h = BSpline(self.knots, self.homogeneous(), self.degree, extrapolate=True)(t)
-        if self.weights is None:
-            return h
-        return h[:, :-1] / h[:, -1:]
+        return _cartesian(h, self.rational)
 
 
 @dataclass(frozen=True)
@@ -111,10 +113,7 @@ class BSplineSurface:
         uv = np.asarray(uv, dtype=float).reshape(-1, 2)
         spl = NdBSpline((self.uknots, self.vknots), self.homogeneous(), (self.udegree, self.vdegree),
                         extrapolate=True)
-        h = spl(uv)
-        if self.weights is None:
-            return h
-        return h[:, :-1] / h[:, -1:]
+        return _cartesian(spl(uv), self.rational)
 
 
 @dataclass(frozen=True)

@@ -220,40 +220,37 @@ def _unroll_surface(s: Geom_BSplineSurface, bounds) -> Geom_BSplineSurface:
     return s
 
 
-def curve_3d(curve, first: float, last: float, tolerance: float) -> tuple[Geom_BSplineCurve, float]:
-    """A 3D curve as a B-spline in its own parameter on [first, last]; (curve, error bound)."""
-    if isinstance(curve, Geom_BSplineCurve):
+def _curve_bspline(curve, first, last, tolerance, kind, trimmed_type, convert, approx_type):
+    """Shared by ``curve_3d`` and ``curve_2d``: keep, convert exactly, or approximate."""
+    if isinstance(curve, kind):
         return _unroll_curve(curve, first, last), 0.0
-    trimmed = Geom_TrimmedCurve(curve, first, last)
+    trimmed = trimmed_type(curve, first, last)
     ws = [(w,) for w in np.linspace(first, last, 13)[1:-1]]
     try:
-        exact = GeomConvert.CurveToBSplineCurve_s(trimmed)
+        exact = convert(trimmed)
         if _keeps_parameter(curve, exact, ws, 1e-3 * tolerance):
             return exact, 0.0
     except Exception:  # noqa: BLE001 - fall through to the approximation
         pass
-    approx = GeomConvert_ApproxCurve(trimmed, tolerance, GeomAbs_C2, _FIT_SEGMENTS, _FIT_DEGREE)
+    approx = approx_type(trimmed, tolerance, GeomAbs_C2, _FIT_SEGMENTS, _FIT_DEGREE)
     if not approx.HasResult():
         raise KernelError(f"cannot convert a {type(curve).__name__} to B-spline")
     return approx.Curve(), float(approx.MaxError())
 
 
+def curve_3d(curve, first: float, last: float, tolerance: float) -> tuple[Geom_BSplineCurve, float]:
+    """A 3D curve as a B-spline in its own parameter on [first, last]; (curve, error bound)."""
+    return _curve_bspline(curve, first, last, tolerance, Geom_BSplineCurve, Geom_TrimmedCurve,
+                          GeomConvert.CurveToBSplineCurve_s, GeomConvert_ApproxCurve)
+
+
 def curve_2d(curve, first: float, last: float, tolerance: float) -> tuple[Geom2d_BSplineCurve, float]:
-    """A pcurve as a 2D B-spline in its own parameter on [first, last]; (curve, error bound)."""
-    if isinstance(curve, Geom2d_BSplineCurve):
-        return _unroll_curve(curve, first, last), 0.0
-    trimmed = Geom2d_TrimmedCurve(curve, first, last)
-    ws = [(w,) for w in np.linspace(first, last, 13)[1:-1]]
-    try:
-        exact = Geom2dConvert.CurveToBSplineCurve_s(trimmed)
-        if _keeps_parameter(curve, exact, ws, 1e-3 * tolerance):
-            return exact, 0.0
-    except Exception:  # noqa: BLE001
-        pass
-    approx = Geom2dConvert_ApproxCurve(trimmed, tolerance, GeomAbs_C2, _FIT_SEGMENTS, _FIT_DEGREE)
-    if not approx.HasResult():
-        raise KernelError(f"cannot convert a 2D {type(curve).__name__} to B-spline")
-    return approx.Curve(), float(approx.MaxError())
+    """A pcurve as a 2D B-spline in its own parameter on [first, last]; (curve, error bound).
+
+    ``tolerance`` is in parameter units.
+    """
+    return _curve_bspline(curve, first, last, tolerance, Geom2d_BSplineCurve, Geom2d_TrimmedCurve,
+                          Geom2dConvert.CurveToBSplineCurve_s, Geom2dConvert_ApproxCurve)
 
 
 def _aligned(a: float, b: float, lo: float, hi: float) -> float:
