@@ -116,3 +116,17 @@ def test_help_does_not_import_the_kernel():
     code = ("import sys; from watertight_cli.cli import main; "
             "assert not any(m.startswith('OCP') for m in sys.modules), 'OCP imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_kernel_failure_names_the_file(monkeypatch):
+    from watertight_cli.errors import KernelError
+    from watertight_cli.occ import extract
+
+    def fail(*a, **k):
+        raise KernelError("cannot convert a Geom_OffsetSurface to B-spline")
+
+    monkeypatch.setattr(extract, "surface_bspline", fail)
+    path = fixture_path("sphere.step")
+    result = run("report", str(path))
+    assert result.exit_code == EXIT_FAILED
+    assert "cannot convert" in one_line_error(result, "sphere.step")

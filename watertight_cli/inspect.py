@@ -45,6 +45,17 @@ class _Clock:
 
 def inspect(path: str, tol: Tolerances) -> Inspection:
     """Read, sew if needed, convert to arrays and measure one file. Raises WatertightError."""
+    from .errors import KernelError
+
+    try:
+        return _inspect(path, tol)
+    except KernelError as exc:  # name the file in every message
+        if str(path) in str(exc):
+            raise
+        raise KernelError(f"{path}: {exc}") from exc
+
+
+def _inspect(path: str, tol: Tolerances) -> Inspection:
     from .occ.extract import build_model, prepare, sample_tracks
     from .occ.io import read_shape
 
