@@ -521,21 +521,19 @@ def build_model(shape: TopoDS_Shape, read: ReadResult, diag: float, sewing: Sewi
                  units=read.units, sewing=sewing)
 
 
-def _coedge(e, face, emap, surface, fit: float) -> tuple[Coedge, float]:
+def _coedge(e, face, emap, speed: float, fit: float) -> tuple[Coedge, float]:
     first, last = BRep_Tool.Range_s(e, face)
     pc = BRep_Tool.CurveOnSurface_s(e, face, 0.0, 0.0)
     if pc is None:
         return Coedge(emap.FindIndex(e) - 1, e.Orientation() == TopAbs_REVERSED, None, first, last), 0.0
     # parameter-space tolerance from the 3D one through the surface's largest speed
-    speed = _surface_speed(surface)
     bs, err2d = curve_2d(pc, first, last, fit / speed)
     return (Coedge(edge=emap.FindIndex(e) - 1, reversed=e.Orientation() == TopAbs_REVERSED,
                    pcurve=align_curve(curve_arrays(bs), first, last), first=first, last=last), err2d * speed)
 
 
-def _surface_speed(s: Geom_BSplineSurface) -> float:
+def _surface_speed(a: BSplineSurface) -> float:
     """An upper bound of |dS/du|, |dS/dv| from the control net (hodograph bound), at least 1."""
-    a = surface_arrays(s) if not isinstance(s, BSplineSurface) else s
     p, q = a.udegree, a.vdegree
     du = np.diff(a.poles, axis=0) * p / np.maximum(
         (a.uknots[p + 1:p + a.poles.shape[0]] - a.uknots[1:a.poles.shape[0]])[:, None, None], 1e-300)
@@ -558,6 +556,7 @@ def _face(face, index: int, emap, fit: float) -> Face:
     bs, approx = surface_bspline(surf, bounds, fit)
     arrays = align_surface(surface_arrays(bs), _pad(surf, bounds)) if approx else surface_arrays(bs)
 
+    speed = _surface_speed(arrays)
     loops = []
     errors = [approx]
     outer = BRepTools.OuterWire_s(face)
@@ -576,7 +575,7 @@ def _face(face, index: int, emap, fit: float) -> Face:
                 exp.Next()
         coedges = []
         for e in uses:
-            ce, err = _coedge(e, face, emap, arrays, fit)
+            ce, err = _coedge(e, face, emap, speed, fit)
             coedges.append(ce)
             errors.append(err)
         loops.append(Loop(tuple(coedges), outer=not outer.IsNull() and wire.IsSame(outer)))
