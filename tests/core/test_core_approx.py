@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 from watertight_cli.core.approx import fit_curve, fit_piecewise, sampled_error
 from watertight_cli.core.bezier import curve_eval
 
-seeds = st.integers(0, 2**32 - 1)
+from .helpers import seeds
+
 DENSE = np.linspace(0, 1, 20001)
 
 

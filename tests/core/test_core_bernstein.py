@@ -9,8 +9,9 @@ from hypothesis import strategies as st
 from watertight_cli.core.bernstein import basis, binom, binom_table, from_power, product, product2, to_power
 from watertight_cli.core.bezier import curve_eval, surface_eval
 
+from .helpers import seeds
+
 SETTINGS = settings(max_examples=40, deadline=None)
-seeds = st.integers(0, 2**32 - 1)
 
 
 def test_binom_table_exact():

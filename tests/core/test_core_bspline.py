@@ -16,13 +16,11 @@ from watertight_cli.core.bspline import (
     to_bezier,
 )
 
+from .helpers import rel_err, seeds
+
 SETTINGS = settings(max_examples=40, deadline=None)
-seeds = st.integers(0, 2**32 - 1)
 REL = 1e-12
 
-
-def rel_err(a, b):
-    return np.abs(a - b).max() / max(1.0, np.abs(b).max())
 
 
 def random_knots(rng, p, clamped=True):

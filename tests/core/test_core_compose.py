@@ -20,8 +20,9 @@ from watertight_cli.core.compose import (
     ruled_map,
 )
 
+from .helpers import seeds
+
 SETTINGS = settings(max_examples=60, deadline=None)
-seeds = st.integers(0, 2**32 - 1)
 REL = 1e-11
 
 

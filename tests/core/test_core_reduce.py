@@ -8,8 +8,9 @@ from hypothesis import strategies as st
 from watertight_cli.core.bezier import curve_eval, elevate_curve, elevate_surface, surface_eval_grid
 from watertight_cli.core.reduce import reduce_curve, reduce_surface, reduction_bound
 
+from .helpers import seeds
+
 SETTINGS = settings(max_examples=50, deadline=None)
-seeds = st.integers(0, 2**32 - 1)
 X = np.linspace(0, 1, 2001)
 
 
