@@ -108,7 +108,7 @@ def _flat_padded(x: np.ndarray, nlast: int) -> np.ndarray:
     return np.concatenate([flat, np.zeros(lead + (1,))], axis=-1)
 
 
-def _bernstein_of(x: np.ndarray, degrees: tuple[int, ...]) -> list[np.ndarray]:
+def _bernstein_of(x: np.ndarray, degrees: tuple[int, ...], w: np.ndarray | None = None) -> list[np.ndarray]:
     """Scaled Bernstein coefficients of B_i^k(X_r(s, t)), i = 0..k, for stacked maps X_r.
 
     x : (R, ..., a+1, b+1) float, the Bernstein coefficients of R maps of the same bidegree (a, b);
@@ -117,6 +117,9 @@ def _bernstein_of(x: np.ndarray, degrees: tuple[int, ...]) -> list[np.ndarray]:
 
     Recurrence B_i^k = (1 - X) B_i^{k-1} + X B_{i-1}^{k-1} (Farin ch. 5); each step is one gather of the
     2-D Toeplitz matrices of (1 - X)^ and X^ and one matmul, and the R maps share every numpy call.
+
+    w : optional (..., a+1, b+1) weight grid of a rational map X / w; then (w - X) replaces (1 - X) and
+    the results are the homogeneous forms w^k B_i^k(X / w).
     """
     a1, b1 = x.shape[-2:]
     lead = x.shape[:-2]
@@ -126,7 +129,8 @@ def _bernstein_of(x: np.ndarray, degrees: tuple[int, ...]) -> list[np.ndarray]:
     if kmax == 0:
         return results
     # factors (R, ..., 2, a+1, b+1): [(1 - X)^, X^]
-    factors = np.concatenate([((1.0 - x) * sc)[..., None, :, :], (x * sc)[..., None, :, :]], axis=-3)
+    one = 1.0 if w is None else w
+    factors = np.concatenate([((one - x) * sc)[..., None, :, :], (x * sc)[..., None, :, :]], axis=-3)
     fpad = _flat_padded(factors, 2)  # (R, ..., 2, (a+1)(b+1)+1)
     s = factors  # step 1: B_0^1 = 1 - X, B_1^1 = X;  s : (R, ..., k, P, Q) (k = degree + 1 rows)
     for r, k in enumerate(degrees):
@@ -149,13 +153,15 @@ def _bernstein_of(x: np.ndarray, degrees: tuple[int, ...]) -> list[np.ndarray]:
     return results
 
 
-def _compose(ctrl: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
+def _compose(ctrl: np.ndarray, U: np.ndarray, V: np.ndarray, W: np.ndarray | None = None) -> np.ndarray:
     """Batched core. ctrl (..., m+1, n+1, d); U (..., a+1, b+1); V (..., c+1, e+1) -> (..., ds+1, dt+1, d).
 
-    Leading axes of ctrl, U, V broadcast.
+    Leading axes of ctrl, U, V broadcast. W (same shape as U and V) makes the map rational (U/W, V/W).
     """
     m, n, d = ctrl.shape[-3] - 1, ctrl.shape[-2] - 1, ctrl.shape[-1]
-    if U.shape == V.shape:
+    if W is not None:
+        bu, bv = _bernstein_of(np.concatenate([U[None], V[None]]), (m, n), W[None])
+    elif U.shape == V.shape:
         bu, bv = _bernstein_of(np.concatenate([U[None], V[None]]), (m, n))
     else:
         (bu,) = _bernstein_of(U[None], (m,))
@@ -189,8 +195,12 @@ def _check_budget(ds: int, dt: int, max_degree: int | None) -> None:
         raise ValueError(f"composed bidegree ({ds}, {dt}) exceeds the degree budget {max_degree}")
 
 
-def compose(ctrl, U, V, max_degree: int | None = None) -> np.ndarray:
+def compose(ctrl, U, V, max_degree: int | None = None, W=None) -> np.ndarray:
     """Exact composition S o phi of a Bezier surface with a polynomial map phi = (U, V).
+
+    With W (same shape as U and V) the map is rational, phi = (U/W, V/W); ctrl must then be homogeneous
+    (its last channel the weight, 1 for a polynomial surface) and the result is a homogeneous net: the
+    common factor W^(m+n) stays in every channel, which leaves the rational patch unchanged.
 
     Parameters
     ----------
@@ -207,6 +217,10 @@ def compose(ctrl, U, V, max_degree: int | None = None) -> np.ndarray:
     ctrl = np.asarray(ctrl, dtype=float)
     U = np.asarray(U, dtype=float)
     V = np.asarray(V, dtype=float)
+    if W is not None:
+        W = np.asarray(W, dtype=float)
+        if not (W.shape == U.shape == V.shape):
+            raise ValueError(f"compose: a rational map needs U, V, W of one shape; got {U.shape}, {V.shape}, {W.shape}")
     if ctrl.ndim < 2 or U.ndim != 2 or V.ndim != 2:
         raise ValueError(
             f"compose: need ctrl (m+1, n+1, d), U (a+1, b+1), V (c+1, e+1); got {ctrl.shape}, {U.shape}, "
@@ -217,7 +231,7 @@ def compose(ctrl, U, V, max_degree: int | None = None) -> np.ndarray:
     _check_budget(ds, dt, max_degree)
     tail = ctrl.shape[2:]
     flat = ctrl.reshape(m + 1, n + 1, -1)
-    return _compose(flat, U, V).reshape((ds + 1, dt + 1) + tail)
+    return _compose(flat, U, V, W).reshape((ds + 1, dt + 1) + tail)
 
 
 def compose_batch(ctrls, Us, Vs, max_degree: int | None = None) -> np.ndarray:

@@ -1,0 +1,725 @@
+"""Stage 1, untrim: every trimmed face becomes Bezier patches on [0, 1]^2 (numpy only, no OCP).
+
+The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
+
+1. **Pieces and the edge plan.** Every pcurve is cut into Bezier pieces at its knots, at its crossings
+   with the surface's interior knot lines and at its u- and v-extrema. The parameters that any face of
+   an edge needs, plus the knots of the edge's 3D curve, form the edge's plan ``W_e``; every face then
+   cuts the edge at all of ``W_e``, so both faces of an edge see the same pieces.
+2. **Slabs and cells.** A face's domain is cut into vertical slabs by the iso-lines u = const through
+   every piece end and every interior u-knot. Inside a slab each piece is the graph of a function of u;
+   sorted by v, consecutive pairs (even-odd rule) bound the regions of the face. Interior v-knot lines
+   cut each region further, so every cell lies in one Bezier span of the surface and is bounded by two
+   u-iso rungs and a bottom and a top side, each a pcurve piece or a v-iso line. The slab lines also cut
+   pieces of other edges; those cuts are local to the face (recorded as ``local_cuts``).
+3. **Maps.** A cell whose bottom and top are iso-lines is a sub-box: de Casteljau/blossoming. Otherwise
+   the ruled map phi(s, t) = (1 - t) B(s) + t T(s) joins the bottom B and the top T, each in its own
+   (pcurve = edge) parameter, so the trimming side keeps the edge's parameter. S o phi is composed
+   exactly (polynomial or rational) in the Bernstein basis. The Jacobian of phi is checked on a grid; a
+   folded cell is cut in two at its middle u-line.
+4. **Degree budget.** Where the exact bidegree exceeds ``max_degree`` the cell is approximated: the
+   surface span is cut to the cell's box and its degree reduced, the pieces' degree is reduced with
+   their ends held, and if the certified bound exceeds the tolerance the cell is halved and tried again.
+
+Every patch records the exact cell map (its two sides, in the face's global uv) so that the own verify
+step can compare the patch with S(phi) evaluated independently.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import brentq
+
+from .core.bernstein import basis, product
+from .core.bezier import curve_segment, elevate_curve, surface_subbox
+from .core.bspline import surface_to_bezier, to_bezier
+from .core.compose import compose
+from .core.reduce import reduce_curve, reduce_surface
+from .errors import WatertightError
+from .model import BSplineCurve, Face, Model
+from .tolerances import Tolerances
+
+__all__ = ["Patch", "FaceResult", "UntrimResult", "untrim", "edge_plan", "UntrimError", "patch_points"]
+
+_MAX_SPLIT_DEPTH = 14
+_ROOT_SAMPLES = 48
+
+
+class UntrimError(WatertightError):
+    """A face that stage 1 cannot decompose (for example a loop without pcurves)."""
+
+
+# ---------------------------------------------------------------------------------------- containers
+
+
+@dataclass
+class Side:
+    """The bottom or top of a cell, in the face's global uv, oriented with u increasing.
+
+    H : (k+1, 3) homogeneous planar Bezier [X, Y, W] (W = 1 for polynomial pieces)
+    iso : v-iso line (a knot line, or a piece lying on one); then H is linear [(a, c, 1), (b, c, 1)]
+    edge, w0, w1 : for a pcurve piece, its edge and the edge parameters at s = 0 and s = 1
+    """
+
+    H: np.ndarray
+    iso: bool
+    edge: int | None = None
+    w0: float = 0.0
+    w1: float = 0.0
+    degenerate: bool = False
+
+
+@dataclass
+class Patch:
+    """One output patch. ctrl is (ds+1, dt+1, 3), or (.., 4) homogeneous when rational.
+
+    bottom, top : the exact cell sides (global uv) that define the cell map, for verification
+    bound : certified (or, when ``estimated``, sampled) deviation bound from the face, model units
+    """
+
+    face: int
+    ctrl: np.ndarray
+    rational: bool
+    bottom: Side
+    top: Side
+    bound: float = 0.0
+    estimated: bool = False
+    approximated: bool = False
+
+    @property
+    def degrees(self) -> tuple[int, int]:
+        return self.ctrl.shape[0] - 1, self.ctrl.shape[1] - 1
+
+
+@dataclass
+class FaceResult:
+    face: int
+    patches: list[Patch] = field(default_factory=list)
+    bound: float = 0.0
+    approximated: bool = False
+    estimated: bool = False
+    folds: int = 0
+    local_cuts: int = 0
+    closure: float = 0.0  # deviation bound of closing the loops' uv gaps (model units)
+    problems: list[str] = field(default_factory=list)
+
+
+@dataclass
+class UntrimResult:
+    faces: list[FaceResult]
+    plan: dict[int, np.ndarray]
+    tolerance: float
+    max_degree: int
+
+    @property
+    def patches(self) -> list[Patch]:
+        return [p for f in self.faces for p in f.patches]
+
+
+# ------------------------------------------------------------------------------------- small helpers
+
+
+def _h(poles: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """Homogeneous [X, Y, W] poles of a planar curve (W = 1 when polynomial)."""
+    if weights is None:
+        return np.concatenate([poles, np.ones((poles.shape[0], 1))], axis=1)
+    return np.concatenate([poles * weights[:, None], weights[:, None]], axis=1)
+
+
+def _eval(H: np.ndarray, t) -> np.ndarray:
+    """Cartesian uv of a homogeneous planar Bezier at t (k,) -> (k, 2)."""
+    h = basis(H.shape[0] - 1, np.atleast_1d(np.asarray(t, dtype=float))) @ H
+    return h[:, :2] / h[:, 2:3]
+
+
+def _deriv_h(H: np.ndarray) -> np.ndarray:
+    k = H.shape[0] - 1
+    return k * np.diff(H, axis=0) if k > 0 else np.zeros((1, H.shape[1]))
+
+
+def _coord_fn(H: np.ndarray, axis: int, c: float):
+    """f(t) = X_axis(t) - c W(t): its roots are where the curve crosses the line coordinate = c."""
+    coef = H[:, axis] - c * H[:, 2]
+    k = H.shape[0] - 1
+    return lambda t: basis(k, np.atleast_1d(t)) @ coef
+
+
+def _extremum_fn(H: np.ndarray, axis: int):
+    """f(t) = X' W - X W' for coordinate ``axis``: zero at the extrema of X / W."""
+    D = _deriv_h(H)
+    k, kd = H.shape[0] - 1, D.shape[0] - 1
+
+    def f(t):
+        t = np.atleast_1d(t)
+        b, bd = basis(k, t), basis(kd, t)
+        return (bd @ D[:, axis]) * (b @ H[:, 2]) - (b @ H[:, axis]) * (bd @ D[:, 2])
+
+    return f
+
+
+def _roots(f, lo: float = 0.0, hi: float = 1.0, n: int = _ROOT_SAMPLES) -> list[float]:
+    """Sign changes of f on a grid of n+1 points in [lo, hi], refined by Brent's method (open interval)."""
+    ts = np.linspace(lo, hi, n + 1)
+    ys = np.asarray(f(ts), dtype=float)
+    scale = float(np.max(np.abs(ys))) if ys.size else 0.0
+    if not scale > 0:
+        return []
+    out = []
+    for i in range(n):
+        a, b, ya, yb = ts[i], ts[i + 1], ys[i], ys[i + 1]
+        if ya == 0.0 and 0 < i:
+            out.append(a)
+        elif ya * yb < 0:
+            out.append(brentq(lambda x: float(f(x)[0]), a, b, xtol=1e-15, rtol=1e-15))
+    return [r for r in out if lo < r < hi]
+
+
+def _merge(values, lo: float, hi: float, eps: float) -> np.ndarray:
+    """Sorted values in (lo, hi), dropping those within eps of an end or of the previous one."""
+    out: list[float] = []
+    for x in sorted(values):
+        if x <= lo + eps or x >= hi - eps:
+            continue
+        if out and x - out[-1] <= eps:
+            continue
+        out.append(float(x))
+    return np.array(out)
+
+
+def _interior_breaks(knots: np.ndarray, degree: int) -> np.ndarray:
+    u = np.unique(knots[degree : len(knots) - degree])
+    return u[1:-1]
+
+
+# ------------------------------------------------------------------------------------ pieces and plan
+
+
+@dataclass
+class _Coedge:
+    edge: int
+    degenerate: bool
+    curve: BSplineCurve
+    first: float
+    last: float
+    breaks: np.ndarray  # pcurve Bezier breaks
+    spans: np.ndarray  # (k, p+1, 3) homogeneous
+    loop: int = 0
+    reversed: bool = False
+
+
+def _coedges(face: Face, model: Model) -> list[_Coedge]:
+    out = []
+    for li, loop in enumerate(face.loops):
+        for ce in loop.coedges:
+            edge = model.edges[ce.edge]
+            if ce.pcurve is None:
+                raise UntrimError(f"face {face.index}: edge {ce.edge} has no pcurve on it")
+            c = ce.pcurve
+            br, spans = to_bezier(c.knots, c.degree, _h(c.poles, c.weights))
+            out.append(_Coedge(ce.edge, edge.degenerate, c, ce.first, ce.last, br, spans, li, ce.reversed))
+    return out
+
+
+def _span_pieces(ce: _Coedge, params: np.ndarray):
+    """Yield (w0, w1, H) Bezier pieces of the coedge's pcurve between consecutive params (sorted, with
+    the ends), each inside one pcurve span."""
+    br = ce.breaks
+    cuts = np.unique(np.concatenate([[ce.first, ce.last], params, br[(br > ce.first) & (br < ce.last)]]))
+    eps = 1e-13 * max(ce.last - ce.first, 1e-300)
+    keep = [cuts[0]]
+    for x in cuts[1:]:
+        if x - keep[-1] > eps:
+            keep.append(x)
+    keep[-1] = ce.last
+    for w0, w1 in zip(keep[:-1], keep[1:], strict=True):
+        j = int(np.clip(np.searchsorted(br, 0.5 * (w0 + w1), side="right") - 1, 0, len(ce.spans) - 1))
+        x0, x1 = br[j], br[j + 1]
+        H = curve_segment(ce.spans[j], (w0 - x0) / (x1 - x0), (w1 - x0) / (x1 - x0))
+        yield float(w0), float(w1), H
+
+
+def _needs(ce: _Coedge, surface_breaks: tuple[np.ndarray, np.ndarray]) -> list[float]:
+    """Edge parameters this face needs on the coedge: pcurve knots, knot-line crossings, extrema."""
+    out: list[float] = []
+    for w0, w1, H in _span_pieces(ce, np.array([])):
+        out.append(w0)
+        uv = H[:, :2] / H[:, 2:3]
+        fns = [_extremum_fn(H, 0), _extremum_fn(H, 1)]
+        for axis in (0, 1):
+            lo, hi = uv[:, axis].min(), uv[:, axis].max()
+            for c in surface_breaks[axis]:
+                if lo < c < hi:
+                    fns.append(_coord_fn(H, axis, c))
+        for f in fns:
+            out.extend(w0 + r * (w1 - w0) for r in _roots(f))
+    return out
+
+
+def edge_plan(model: Model) -> dict[int, np.ndarray]:
+    """Every non-degenerate edge's sorted split parameters, agreed by all its faces (see module doc)."""
+    raw: dict[int, list[float]] = {}
+    for face in model.faces:
+        s = face.surface
+        sb = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
+        for ce in _coedges(face, model):
+            if ce.degenerate:
+                continue
+            raw.setdefault(ce.edge, []).extend(_needs(ce, sb))
+    plan = {}
+    for e, vals in raw.items():
+        edge = model.edges[e]
+        if edge.curve is not None:
+            vals = vals + list(_interior_breaks(edge.curve.knots, edge.curve.degree))
+        eps = 1e-11 * max(edge.last - edge.first, 1e-300)
+        plan[e] = _merge(vals, edge.first, edge.last, eps)
+    return plan
+
+
+# ---------------------------------------------------------------------------------------- slabs/cells
+
+
+@dataclass
+class _Piece:
+    H: np.ndarray
+    edge: int
+    w0: float
+    w1: float
+    degenerate: bool
+
+
+def _orient_u(p: _Piece) -> _Piece:
+    """The same piece running with u increasing."""
+    if p.H[-1, 0] / p.H[-1, 2] >= p.H[0, 0] / p.H[0, 2]:
+        return p
+    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate)
+
+
+def _split(p: _Piece, t: float) -> tuple[_Piece, _Piece]:
+    w = p.w0 + t * (p.w1 - p.w0)
+    return (
+        _Piece(curve_segment(p.H, 0.0, t), p.edge, p.w0, w, p.degenerate),
+        _Piece(curve_segment(p.H, t, 1.0), p.edge, w, p.w1, p.degenerate),
+    )
+
+
+def _t_at_u(H: np.ndarray, u: float) -> float:
+    """Parameter of a u-monotone piece at u (clamped to the piece)."""
+    f = _coord_fn(H, 0, u)
+    a, b = float(f(0.0)[0]), float(f(1.0)[0])
+    if a == 0.0:
+        return 0.0
+    if b == 0.0:
+        return 1.0
+    if a * b > 0:
+        return 0.0 if abs(a) < abs(b) else 1.0
+    return brentq(lambda x: float(f(x)[0]), 0.0, 1.0, xtol=1e-15, rtol=1e-15)
+
+
+def _cluster(values: list[float], exact: set[float], eps: float) -> np.ndarray:
+    vs = sorted(values)
+    groups: list[list[float]] = []
+    for x in vs:
+        if groups and x - groups[-1][-1] <= eps:
+            groups[-1].append(x)
+        else:
+            groups.append([x])
+    out = []
+    for g in groups:
+        ex = [x for x in g if x in exact]
+        out.append(ex[0] if ex else g[len(g) // 2])
+    return np.array(out)
+
+
+def _iso_side(a: float, b: float, c: float) -> Side:
+    return Side(np.array([[a, c, 1.0], [b, c, 1.0]]), True)
+
+
+def _as_side(p: _Piece, veps: float) -> Side:
+    uv = p.H[:, :2] / p.H[:, 2:3]
+    iso = bool(np.ptp(uv[:, 1]) <= veps)
+    return Side(p.H, iso, p.edge, p.w0, p.w1, p.degenerate)
+
+
+def _cells(face: Face, pieces: list[_Piece], ub: np.ndarray, vb: np.ndarray, fr: FaceResult):
+    """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc)."""
+    u0, u1, v0, v1 = face.uv_bounds
+    ueps = 1e-11 * max(u1 - u0, 1e-300)
+    veps = 1e-11 * max(v1 - v0, 1e-300)
+    ends = []
+    for p in pieces:
+        ends.append(p.H[0, 0] / p.H[0, 2])
+        ends.append(p.H[-1, 0] / p.H[-1, 2])
+    lo, hi = min(ends), max(ends)
+    inner_u = [float(x) for x in ub[1:-1] if lo + ueps < x < hi - ueps]
+    lines = _cluster(ends + inner_u, set(inner_u), ueps)
+    slabs: list[list[_Piece]] = [[] for _ in range(len(lines) - 1)]
+    for p in pieces:
+        p = _orient_u(p)
+        a, b = p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2]
+        if b - a <= ueps:
+            continue  # a u-iso piece: it lies on a slab line
+        inside = lines[(lines > a + ueps) & (lines < b - ueps)]
+        rest = p
+        for c in inside:
+            t = _t_at_u(rest.H, c)
+            if 0.0 < t < 1.0:
+                left, rest = _split(rest, t)
+                fr.local_cuts += 1
+                _put(slabs, lines, left)
+        _put(slabs, lines, rest)
+    for j, sp in enumerate(slabs):
+        if not sp:
+            continue
+        ua, ubb = float(lines[j]), float(lines[j + 1])
+        um = 0.5 * (ua + ubb)
+        vs = [float(_eval(p.H, _t_at_u(p.H, um))[0, 1]) for p in sp]
+        order = np.argsort(vs, kind="stable")
+        if len(sp) % 2:
+            raise UntrimError(
+                f"face {face.index}: the trimming loops do not close in the parameter domain "
+                f"({len(sp)} crossings of u = {um:.6g})"
+            )
+        for k in range(0, len(sp), 2):
+            bot, top = sp[order[k]], sp[order[k + 1]]
+            bside, tside = _as_side(bot, veps), _as_side(top, veps)
+            bmax = float(np.max(bot.H[:, 1] / bot.H[:, 2]))
+            tmin = float(np.min(top.H[:, 1] / top.H[:, 2]))
+            knots = [float(c) for c in vb[1:-1] if bmax + veps < c < tmin - veps]
+            sides = [bside] + [_iso_side(ua, ubb, c) for c in knots] + [tside]
+            for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
+                yield ua, ubb, s0, s1
+
+
+def _put(slabs, lines, p: _Piece) -> None:
+    um = 0.5 * (p.H[0, 0] / p.H[0, 2] + p.H[-1, 0] / p.H[-1, 2])
+    j = int(np.clip(np.searchsorted(lines, um) - 1, 0, len(slabs) - 1))
+    slabs[j].append(p)
+
+
+# ------------------------------------------------------------------------------------------ the maps
+
+
+def _localize(H: np.ndarray, u0: float, du: float, v0: float, dv: float) -> np.ndarray:
+    out = H.copy()
+    out[:, 0] = (H[:, 0] - u0 * H[:, 2]) / du
+    out[:, 1] = (H[:, 1] - v0 * H[:, 2]) / dv
+    return out
+
+
+def _polynomial(H: np.ndarray) -> bool:
+    return bool(np.all(H[:, 2] == 1.0))
+
+
+def _map_grids(B: np.ndarray, T: np.ndarray):
+    """(U, V, W|None) Bernstein grids (k+1, 2) of phi(s, t) = (1 - t) B(s) + t T(s)."""
+    if _polynomial(B) and _polynomial(T):
+        k = max(B.shape[0], T.shape[0]) - 1
+        Be = elevate_curve(B[:, :2], k - (B.shape[0] - 1))
+        Te = elevate_curve(T[:, :2], k - (T.shape[0] - 1))
+        return np.stack([Be[:, 0], Te[:, 0]], 1), np.stack([Be[:, 1], Te[:, 1]], 1), None
+    # (1-t) XB/WB + t XT/WT = [(1-t) XB WT + t XT WB] / (WB WT)
+    XB = product(B[:, :2], T[:, 2])
+    XT = product(T[:, :2], B[:, 2])
+    W = product(B[:, 2], T[:, 2])
+    return (np.stack([XB[:, 0], XT[:, 0]], 1), np.stack([XB[:, 1], XT[:, 1]], 1), np.stack([W, W], 1))
+
+
+def _phi_jacobian(U, V, W, n: int = 9) -> np.ndarray:
+    """det d(u, v)/d(s, t) of the map on an interior n x n grid."""
+    s = np.linspace(0, 1, n + 2)[1:-1]
+    a = U.shape[0] - 1
+    Bs, Bt = basis(a, s), basis(1, s)
+    dBs = a * (basis(a - 1, s) @ (np.eye(a + 1)[1:] - np.eye(a + 1)[:-1])) if a > 0 else np.zeros((n, 1))
+    dBt = np.stack([-np.ones(n), np.ones(n)], 1)
+
+    def ev(G, bs, bt):
+        return bs @ G @ bt.T
+
+    if W is None:
+        us, ut = ev(U, dBs, Bt), ev(U, Bs, dBt)
+        vs, vt = ev(V, dBs, Bt), ev(V, Bs, dBt)
+        return us * vt - ut * vs
+    w, ws, wt = ev(W, Bs, Bt), ev(W, dBs, Bt), ev(W, Bs, dBt)
+    x, xs, xt = ev(U, Bs, Bt), ev(U, dBs, Bt), ev(U, Bs, dBt)
+    y, ys, yt = ev(V, Bs, Bt), ev(V, dBs, Bt), ev(V, Bs, dBt)
+    us, ut = (xs * w - x * ws) / w**2, (xt * w - x * wt) / w**2
+    vs, vt = (ys * w - y * ws) / w**2, (yt * w - y * wt) / w**2
+    return us * vt - ut * vs
+
+
+def _split_side(side: Side, u: float) -> tuple[Side, Side]:
+    if side.iso and side.edge is None:
+        a, b, c = side.H[0, 0], side.H[-1, 0], side.H[0, 1]
+        return _iso_side(a, u, c), _iso_side(u, b, c)
+    t = _t_at_u(side.H, u)
+    w = side.w0 + t * (side.w1 - side.w0)
+    return (
+        Side(curve_segment(side.H, 0.0, t), side.iso, side.edge, side.w0, w, side.degenerate),
+        Side(curve_segment(side.H, t, 1.0), side.iso, side.edge, w, side.w1, side.degenerate),
+    )
+
+
+class _FaceContext:
+    def __init__(self, face: Face, tol: float, max_degree: int):
+        s = face.surface
+        self.face = face
+        self.rational = s.rational
+        h = s.homogeneous()
+        self.ub, self.vb, self.spans = surface_to_bezier(s.uknots, s.vknots, s.udegree, s.vdegree, h)
+        self.m, self.n = s.udegree, s.vdegree
+        self.tol = tol
+        self.max_degree = max_degree
+
+    def span_of(self, u: float, v: float) -> tuple[int, int]:
+        i = int(np.clip(np.searchsorted(self.ub, u, side="right") - 1, 0, len(self.ub) - 2))
+        j = int(np.clip(np.searchsorted(self.vb, v, side="right") - 1, 0, len(self.vb) - 2))
+        return i, j
+
+    def cell_patches(self, ua: float, ubb: float, bot: Side, top: Side, fr: FaceResult, depth: int = 0):
+        um = 0.5 * (ua + ubb)
+        vm = 0.5 * (_eval(bot.H, _t_at_u(bot.H, um))[0, 1] + _eval(top.H, _t_at_u(top.H, um))[0, 1])
+        i, j = self.span_of(um, vm)
+        U0, du = self.ub[i], self.ub[i + 1] - self.ub[i]
+        V0, dv = self.vb[j], self.vb[j + 1] - self.vb[j]
+        P = self.spans[i, j]
+        if bot.iso and top.iso:
+            c0, c1 = bot.H[0, 1] / bot.H[0, 2], top.H[0, 1] / top.H[0, 2]
+            ctrl = surface_subbox(P, (ua - U0) / du, (ubb - U0) / du, (c0 - V0) / dv, (c1 - V0) / dv)
+            return [Patch(self.face.index, ctrl, self.rational, bot, top)]
+        B = _localize(bot.H, U0, du, V0, dv)
+        T = _localize(top.H, U0, du, V0, dv)
+        U, V, W = _map_grids(B, T)
+        k = U.shape[0] - 1
+        ds, dt = (self.m + self.n) * k, self.m + self.n
+        if max(ds, dt) > self.max_degree:
+            return self._approximate(ua, ubb, bot, top, P, (U0, du, V0, dv), fr, depth)
+        det = _phi_jacobian(U, V, W)
+        if not np.all(det > 0):
+            if depth >= _MAX_SPLIT_DEPTH:
+                fr.folds += 1
+                fr.problems.append(f"a folded cell near u = {um:.6g}, v = {vm:.6g} could not be split away")
+            else:
+                return self._halve(ua, ubb, bot, top, fr, depth)
+        if W is None:
+            ctrl = compose(P, U, V)
+            rational = self.rational
+        else:
+            Ph = P if self.rational else np.concatenate([P, np.ones(P.shape[:2] + (1,))], axis=-1)
+            ctrl = compose(Ph, U, V, W=W)
+            rational = True
+        return [Patch(self.face.index, ctrl, rational, bot, top)]
+
+    def _halve(self, ua, ubb, bot, top, fr, depth):
+        um = 0.5 * (ua + ubb)
+        b0, b1 = _split_side(bot, um)
+        t0, t1 = _split_side(top, um)
+        fr.local_cuts += (bot.edge is not None) + (top.edge is not None)
+        return self.cell_patches(ua, um, b0, t0, fr, depth + 1) + self.cell_patches(um, ubb, b1, t1, fr, depth + 1)
+
+    def _approximate(self, ua, ubb, bot: Side, top: Side, P, frame, fr: FaceResult, depth: int):
+        """Over the degree budget: reduce the surface on the cell's box and the sides' degrees; halve
+        the cell while the certified bound exceeds the tolerance."""
+        U0, du, V0, dv = frame
+        B = _localize(bot.H, U0, du, V0, dv)
+        T = _localize(top.H, U0, du, V0, dv)
+        pts = np.concatenate([B[:, :2] / B[:, 2:3], T[:, :2] / T[:, 2:3]])
+        (a0, b0), (a1, b1) = pts.min(axis=0), pts.max(axis=0)
+        if not (a1 > a0 and b1 > b0):
+            return []  # a cell without area
+        Q = surface_subbox(P, a0, a1, b0, b1)
+        Bq = _localize(B, a0, a1 - a0, b0, b1 - b0)
+        Tq = _localize(T, a0, a1 - a0, b0, b1 - b0)
+        budget = 0.5 * self.tol
+        Qr, mr, nr, serr, est = self._reduce_surface(Q, budget * 0.5)
+        q = max(1, self.max_degree // (mr + nr))
+        lip = _lipschitz(Qr, self.rational)
+        sides, perr, pest = [], 0.0, False
+        for S in (Bq, Tq):
+            Sr, e, es = _reduce_side(S, q)
+            sides.append(Sr)
+            perr = max(perr, lip * e)
+            pest |= es
+        total = serr + perr
+        if total > self.tol or mr + nr > self.max_degree:
+            if depth >= _MAX_SPLIT_DEPTH:
+                fr.problems.append(
+                    f"cell near u = {0.5 * (ua + ubb):.6g} stays above the tolerance ({total:.3g}) "
+                    "after the deepest split"
+                )
+            else:
+                return self._halve(ua, ubb, bot, top, fr, depth)
+        U, V, W = _map_grids(*sides)
+        det = _phi_jacobian(U, V, W)
+        if not np.all(det > 0) and depth < _MAX_SPLIT_DEPTH:
+            return self._halve(ua, ubb, bot, top, fr, depth)
+        if not np.all(det > 0):
+            fr.folds += 1
+            fr.problems.append(f"a folded approximated cell near u = {0.5 * (ua + ubb):.6g}")
+        if W is None:
+            ctrl = compose(Qr, U, V)
+            rational = self.rational
+        else:
+            Qh = Qr if self.rational else np.concatenate([Qr, np.ones(Qr.shape[:2] + (1,))], axis=-1)
+            ctrl = compose(Qh, U, V, W=W)
+            rational = True
+        return [Patch(self.face.index, ctrl, rational, bot, top, total, est or pest, True)]
+
+    def _reduce_surface(self, Q, budget):
+        """Smallest bidegree (m', n') whose reduction of Q stays within budget (polynomial surfaces;
+        rational ones are kept as they are). Returns (net, m', n', bound, estimated)."""
+        m, n = Q.shape[0] - 1, Q.shape[1] - 1
+        if self.rational:
+            return Q, m, n, 0.0, False
+        best = (Q, m, n, 0.0)
+        mr = m
+        for mt in range(1, m):
+            R, e = reduce_surface(Q, mt, n, fix_boundary=False)
+            if e <= 0.5 * budget:
+                best, mr = (R, mt, n, e), mt
+                break
+        base, _, _, e0 = best
+        for nt in range(1, n):
+            R, e = reduce_surface(Q, mr, nt, fix_boundary=False)
+            if e <= budget:
+                best = (R, mr, nt, e)
+                break
+        R, mr, nr, e = best
+        return R, mr, nr, e, False
+
+
+def _lipschitz(Q: np.ndarray, rational: bool) -> float:
+    """Bound of |dS/du| + |dS/dv| over [0, 1]^2 for a Bezier net: the hodograph's convex hull,
+    m max |P_i+1,j - P_ij| (+ the same in v). For rational nets the factor (w_max / w_min)^2 of the
+    rational derivative bound (Floater 1992) multiplies the Cartesian control-point differences."""
+    if rational:
+        w = Q[..., -1]
+        P = Q[..., :-1] / w[..., None]
+        f = (w.max() / w.min()) ** 2
+    else:
+        P, f = Q, 1.0
+    m, n = P.shape[0] - 1, P.shape[1] - 1
+    lu = m * np.max(np.linalg.norm(np.diff(P, axis=0), axis=-1)) if m else 0.0
+    lv = n * np.max(np.linalg.norm(np.diff(P, axis=1), axis=-1)) if n else 0.0
+    return float(f * (lu + lv))
+
+
+def _reduce_side(S: np.ndarray, q: int) -> tuple[np.ndarray, float, bool]:
+    """Degree-q polynomial side for the homogeneous side S (ends kept). Returns (H, uv bound, estimated)."""
+    k = S.shape[0] - 1
+    if _polynomial(S):
+        if k <= q:
+            return S, 0.0, False
+        R, e = reduce_curve(S[:, :2], q, fix_ends=1)
+        return np.concatenate([R, np.ones((q + 1, 1))], axis=1), float(e), False
+    # rational: least squares on samples, ends interpolated; the bound is sampled (estimated)
+    t = np.linspace(0, 1, 8 * (q + 1) + 1)
+    pts = _eval(S, t)
+    M = basis(q, t)
+    R = np.empty((q + 1, 2))
+    R[0], R[-1] = pts[0], pts[-1]
+    if q > 1:
+        rhs = pts - np.outer(M[:, 0], R[0]) - np.outer(M[:, -1], R[-1])
+        R[1:-1] = np.linalg.lstsq(M[:, 1:-1], rhs, rcond=None)[0]
+    tt = np.linspace(0, 1, 257)
+    e = float(np.max(np.linalg.norm(_eval(S, tt) - basis(q, tt) @ R, axis=1)))
+    return np.concatenate([R, np.ones((q + 1, 1))], axis=1), 1.5 * e, True
+
+
+# --------------------------------------------------------------------------------------------- driver
+
+
+def _set_point(H: np.ndarray, row: int, uv: np.ndarray) -> None:
+    H[row, :2] = uv * H[row, 2]
+
+
+def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]]) -> float:
+    """Make every loop exactly closed in uv: where one coedge ends and the next begins (in the loop's
+    travel order), both end control points move to the midpoint. Real files leave uv gaps up to the
+    vertex tolerance there. Returns the largest move (uv units)."""
+    worst = 0.0
+    for chain in chains:
+        ends = []
+        for ce, ps in chain:
+            first, last = (ps[0], 0), (ps[-1], -1)
+            ends.append((last, first) if ce.reversed else (first, last))  # (travel start, travel end)
+        for i in range(len(ends)):
+            (pa, ra) = ends[i][1]
+            (pb, rb) = ends[(i + 1) % len(ends)][0]
+            a = pa.H[ra, :2] / pa.H[ra, 2]
+            b = pb.H[rb, :2] / pb.H[rb, 2]
+            mid = 0.5 * (a + b)
+            worst = max(worst, 0.5 * float(np.linalg.norm(a - b)))
+            _set_point(pa.H, ra, mid)
+            _set_point(pb.H, rb, mid)
+    return worst
+
+
+def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray]) -> tuple[list[_Piece], float]:
+    """The face's pcurve pieces, cut at the edge plan, with the loops closed exactly; and the largest
+    uv move made to close them."""
+    s = face.surface
+    sb = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
+    chains: list[list[tuple[_Coedge, list[_Piece]]]] = [[] for _ in face.loops]
+    for ce in _coedges(face, model):
+        params = plan.get(ce.edge) if not ce.degenerate else np.array(_needs(ce, sb))
+        params = np.array([]) if params is None else params
+        params = params[(params > ce.first) & (params < ce.last)]
+        ps = [_Piece(H.copy(), ce.edge, w0, w1, ce.degenerate) for w0, w1, H in _span_pieces(ce, params)]
+        chains[ce.loop].append((ce, ps))
+    move = _close_loops(chains)
+    return [p for chain in chains for _, ps in chain for p in ps], move
+
+
+def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances) -> FaceResult:
+    fr = FaceResult(face.index)
+    ctx = _FaceContext(face, tol.approx_rel * model.diagonal, tol.max_degree)
+    pieces, move = _face_pieces(face, model, plan)
+    if move > 0:
+        fr.closure = move * max(_lipschitz(P, ctx.rational) / min(ctx.ub[1] - ctx.ub[0], ctx.vb[1] - ctx.vb[0])
+                                for P in ctx.spans.reshape((-1,) + ctx.spans.shape[2:]))
+    for ua, ubb, bot, top in _cells(face, pieces, ctx.ub, ctx.vb, fr):
+        fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
+    approx = [p for p in fr.patches if p.approximated]
+    fr.approximated = bool(approx)
+    fr.estimated = any(p.estimated for p in approx)
+    fr.bound = max((p.bound for p in fr.patches), default=0.0) + face.approximation + fr.closure
+    return fr
+
+
+def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
+    """Stage 1 on a whole model. ``progress`` (optional) is called once per face."""
+    plan = edge_plan(model)
+    faces = []
+    for face in model.faces:
+        try:
+            faces.append(untrim_face(face, model, plan, tol))
+        except UntrimError as exc:
+            fr = FaceResult(face.index)
+            fr.problems.append(str(exc))
+            faces.append(fr)
+        if progress is not None:
+            progress(1)
+    return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree)
+
+
+# ------------------------------------------------------------------------------------ evaluation
+
+
+def patch_points(patch: Patch, s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Points of a patch on the grid s x t -> (len(s), len(t), 3)."""
+    h = np.einsum("ai,ijd,bj->abd", basis(patch.ctrl.shape[0] - 1, s), patch.ctrl,
+                  basis(patch.ctrl.shape[1] - 1, t))
+    return h[..., :3] / h[..., 3:4] if patch.rational else h
+
+
+def cell_map(patch: Patch, s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The exact cell map phi(s, t) in the face's global uv on the grid s x t -> (len(s), len(t), 2)."""
+    if patch.bottom.iso and patch.top.iso:
+        # a sub-box: u runs linearly between the rungs on both sides (whatever the pieces' own parameter)
+        lin = lambda H: np.outer(1 - s, H[0, :2] / H[0, 2]) + np.outer(s, H[-1, :2] / H[-1, 2])  # noqa: E731
+        b, tp = lin(patch.bottom.H), lin(patch.top.H)
+    else:
+        b, tp = _eval(patch.bottom.H, s), _eval(patch.top.H, s)
+    return (1 - t)[None, :, None] * b[:, None, :] + t[None, :, None] * tp[:, None, :]
