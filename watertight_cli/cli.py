@@ -145,5 +145,79 @@ def report(models, as_json, max_gap, samples, quiet):
     sys.exit(run.exit_code)
 
 
+def _progress_factory(enabled: bool, path: str):
+    """progress(stage, total) -> tick callable, drawing a tqdm bar on stderr (None when disabled)."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    bars = []
+
+    def make(stage: str, total: int):
+        for b in bars:
+            b.close()
+        bar = tqdm(total=total, desc=f"{os.path.basename(path)}: {stage}", unit="face", leave=False,
+                   file=sys.stderr, disable=None)
+        bars.append(bar)
+        return bar.update
+
+    make.close = lambda: [b.close() for b in bars]  # type: ignore[attr-defined]
+    return make
+
+
+@main.command(epilog=EPILOG)
+@click.argument("source", type=click.Path(dir_okay=False))
+@click.argument("target", type=click.Path(dir_okay=False))
+@click.option("--stage", type=click.Choice(["full", "untrim"]), default="full", show_default=True,
+              help="untrim: stage 1 only, every face becomes untrimmed Bezier patches that keep its "
+                   "shape (neighbours do not share edges yet). full: stage 1 and stage 2 (shared "
+                   "boundaries); stage 2 is not built yet.")
+@click.option("--max-degree", type=click.IntRange(1, 25), default=25, show_default=True,
+              help="Largest patch degree. Cells whose exact degree is higher are approximated within "
+                   "--tolerance.")
+@click.option("--tolerance", type=click.FloatRange(min=0.0, min_open=True), default=1e-6,
+              show_default=True, metavar="REL",
+              help="Allowed deviation where approximation is needed, relative to the model's "
+                   "bounding-box diagonal (1e-6: one micron on a one-metre part).")
+@click.option("--json", "as_json", is_flag=True, help="Print the conversion report as JSON on stdout.")
+@click.option("--overwrite/--no-overwrite", default=True, show_default=True,
+              help="Replace TARGET when it exists.")
+@click.option("-q", "--quiet", is_flag=True, help="No table and no progress bar on stderr.")
+def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, quiet):
+    """Convert SOURCE (STEP or IGES) into untrimmed Bezier patches written to TARGET.
+
+    TARGET's suffix picks the format (.step/.stp or .igs/.iges). Every patch is verified against
+    its input face (sampled deviation within the bound, trimming sides on the input's
+    surface(pcurve), summed patch area against the face area, no folds) before anything is
+    written; the file is written atomically, so a failed run leaves no partial TARGET.
+    """
+    from .convert import convert_file, format_untrim_table
+    from .report import SCHEMA_VERSION
+    from .tolerances import Tolerances
+
+    if stage == "full":
+        _err("the full conversion needs stage 2 (shared boundaries), which is not built yet; "
+             "run with --stage untrim for stage 1 only")
+        sys.exit(EXIT_USAGE)
+    tol = Tolerances(approx_rel=tolerance, max_degree=max_degree)
+    progress = _progress_factory(not quiet, source)
+    try:
+        rep, error = _run_guarded(
+            lambda: convert_file(source, target, tol, stage, progress, overwrite), source)
+    finally:
+        if progress is not None:
+            progress.close()
+    run = RunReport()
+    run.add(FileOutcome(source, rep, error))
+    if error:
+        _err(error)
+    elif not quiet:
+        click.echo(format_untrim_table(rep), err=True)
+    if as_json:
+        doc = rep or {"schema_version": SCHEMA_VERSION, "file": source, "error": error}
+        sys.stdout.write(json.dumps(doc, indent=1) + "\n")
+    sys.exit(run.exit_code)
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

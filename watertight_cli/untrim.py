@@ -43,7 +43,8 @@ from .tolerances import Tolerances
 
 __all__ = ["Patch", "FaceResult", "UntrimResult", "untrim", "edge_plan", "UntrimError", "patch_points"]
 
-_MAX_SPLIT_DEPTH = 14
+_MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
+_MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _ROOT_SAMPLES = 48
 
 
@@ -60,7 +61,8 @@ class Side:
 
     H : (k+1, 3) homogeneous planar Bezier [X, Y, W] (W = 1 for polynomial pieces)
     iso : v-iso line (a knot line, or a piece lying on one); then H is linear [(a, c, 1), (b, c, 1)]
-    edge, w0, w1 : for a pcurve piece, its edge and the edge parameters at s = 0 and s = 1
+    edge, w0, w1 : for a pcurve piece, its edge and the edge parameters at s = 0 and s = 1; the
+        piece's own parameter s is affine in w (pieces are Bezier segments of the pcurve)
     """
 
     H: np.ndarray
@@ -69,6 +71,7 @@ class Side:
     w0: float = 0.0
     w1: float = 0.0
     degenerate: bool = False
+    pcurve: BSplineCurve | None = None  # the coedge's pcurve, for verification (seams have two)
 
 
 @dataclass
@@ -102,7 +105,8 @@ class FaceResult:
     estimated: bool = False
     folds: int = 0
     local_cuts: int = 0
-    closure: float = 0.0  # deviation bound of closing the loops' uv gaps (model units)
+    closure: float = 0.0  # deviation bound of closing the loops' uv gaps and snapping (model units)
+    snapped: int = 0  # pieces treated as iso-lines though they wiggle (by less than the snap)
     problems: list[str] = field(default_factory=list)
 
 
@@ -240,13 +244,16 @@ def _span_pieces(ce: _Coedge, params: np.ndarray):
         yield float(w0), float(w1), H
 
 
-def _needs(ce: _Coedge, surface_breaks: tuple[np.ndarray, np.ndarray]) -> list[float]:
-    """Edge parameters this face needs on the coedge: pcurve knots, knot-line crossings, extrema."""
+def _needs(ce: _Coedge, surface_breaks: tuple[np.ndarray, np.ndarray], eps=(0.0, 0.0)) -> list[float]:
+    """Edge parameters this face needs on the coedge: pcurve knots, knot-line crossings, extrema.
+
+    eps : (u, v) below which a coordinate's variation over a span is noise (see ``_FaceGeometry``):
+    a pcurve that runs along an iso-line with 1e-11 wiggles has no extrema worth a cut."""
     out: list[float] = []
     for w0, w1, H in _span_pieces(ce, np.array([])):
         out.append(w0)
         uv = H[:, :2] / H[:, 2:3]
-        fns = [_extremum_fn(H, 0), _extremum_fn(H, 1)]
+        fns = [_extremum_fn(H, a) for a in (0, 1) if np.ptp(uv[:, a]) > eps[a]]
         for axis in (0, 1):
             lo, hi = uv[:, axis].min(), uv[:, axis].max()
             for c in surface_breaks[axis]:
@@ -257,16 +264,44 @@ def _needs(ce: _Coedge, surface_breaks: tuple[np.ndarray, np.ndarray]) -> list[f
     return out
 
 
-def edge_plan(model: Model) -> dict[int, np.ndarray]:
+class _FaceGeometry:
+    """A face's surface as Bezier spans, its speed bounds and the snapping thresholds.
+
+    Real pcurves that run along an iso-line wiggle around it by 1e-11 or so. A coordinate
+    variation that moves the surface point by less than ``snap`` (0.1 x ``exact_rel`` x diagonal)
+    is treated as none: ``ueps = snap / max|dS/du|`` (and the same in v). Pieces narrower than
+    ``ueps`` lie on a slab line; sides flatter than ``veps`` are iso-lines. The deviation this
+    causes is at most ``snap`` and is added to the face's bound when it happens.
+    """
+
+    def __init__(self, face: Face, diagonal: float, tol: Tolerances):
+        s = face.surface
+        self.rational = s.rational
+        self.m, self.n = s.udegree, s.vdegree
+        self.ub, self.vb, self.spans = surface_to_bezier(s.uknots, s.vknots, s.udegree, s.vdegree,
+                                                         s.homogeneous())
+        du, dv = np.diff(self.ub), np.diff(self.vb)
+        su = sv = 0.0
+        for i in range(len(du)):
+            for j in range(len(dv)):
+                lu, lv = _lipschitz(self.spans[i, j], self.rational)
+                su, sv = max(su, lu / du[i]), max(sv, lv / dv[j])
+        self.speed = su + sv  # bound of |dS/du| + |dS/dv| over the surface
+        self.snap = 0.1 * tol.exact_rel * diagonal
+        u0, u1, v0, v1 = face.uv_bounds
+        self.ueps = max(1e-11 * max(u1 - u0, 1e-300), self.snap / su if su > 0 else 0.0)
+        self.veps = max(1e-11 * max(v1 - v0, 1e-300), self.snap / sv if sv > 0 else 0.0)
+        self.breaks = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
+
+
+def edge_plan(model: Model, geoms: list[_FaceGeometry]) -> dict[int, np.ndarray]:
     """Every non-degenerate edge's sorted split parameters, agreed by all its faces (see module doc)."""
     raw: dict[int, list[float]] = {}
-    for face in model.faces:
-        s = face.surface
-        sb = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
+    for face, g in zip(model.faces, geoms, strict=True):
         for ce in _coedges(face, model):
             if ce.degenerate:
                 continue
-            raw.setdefault(ce.edge, []).extend(_needs(ce, sb))
+            raw.setdefault(ce.edge, []).extend(_needs(ce, g.breaks, (g.ueps, g.veps)))
     plan = {}
     for e, vals in raw.items():
         edge = model.edges[e]
@@ -287,20 +322,21 @@ class _Piece:
     w0: float
     w1: float
     degenerate: bool
+    pcurve: BSplineCurve | None = None
 
 
 def _orient_u(p: _Piece) -> _Piece:
     """The same piece running with u increasing."""
     if p.H[-1, 0] / p.H[-1, 2] >= p.H[0, 0] / p.H[0, 2]:
         return p
-    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate)
+    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate, p.pcurve)
 
 
 def _split(p: _Piece, t: float) -> tuple[_Piece, _Piece]:
     w = p.w0 + t * (p.w1 - p.w0)
     return (
-        _Piece(curve_segment(p.H, 0.0, t), p.edge, p.w0, w, p.degenerate),
-        _Piece(curve_segment(p.H, t, 1.0), p.edge, w, p.w1, p.degenerate),
+        _Piece(curve_segment(p.H, 0.0, t), p.edge, p.w0, w, p.degenerate, p.pcurve),
+        _Piece(curve_segment(p.H, t, 1.0), p.edge, w, p.w1, p.degenerate, p.pcurve),
     )
 
 
@@ -339,14 +375,12 @@ def _iso_side(a: float, b: float, c: float) -> Side:
 def _as_side(p: _Piece, veps: float) -> Side:
     uv = p.H[:, :2] / p.H[:, 2:3]
     iso = bool(np.ptp(uv[:, 1]) <= veps)
-    return Side(p.H, iso, p.edge, p.w0, p.w1, p.degenerate)
+    return Side(p.H, iso, p.edge, p.w0, p.w1, p.degenerate, p.pcurve)
 
 
-def _cells(face: Face, pieces: list[_Piece], ub: np.ndarray, vb: np.ndarray, fr: FaceResult):
+def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
     """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc)."""
-    u0, u1, v0, v1 = face.uv_bounds
-    ueps = 1e-11 * max(u1 - u0, 1e-300)
-    veps = 1e-11 * max(v1 - v0, 1e-300)
+    ub, vb, ueps, veps = g.ub, g.vb, g.ueps, g.veps
     ends = []
     for p in pieces:
         ends.append(p.H[0, 0] / p.H[0, 2])
@@ -359,6 +393,7 @@ def _cells(face: Face, pieces: list[_Piece], ub: np.ndarray, vb: np.ndarray, fr:
         p = _orient_u(p)
         a, b = p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2]
         if b - a <= ueps:
+            fr.snapped += b - a > 0
             continue  # a u-iso piece: it lies on a slab line
         inside = lines[(lines > a + ueps) & (lines < b - ueps)]
         rest = p
@@ -384,9 +419,15 @@ def _cells(face: Face, pieces: list[_Piece], ub: np.ndarray, vb: np.ndarray, fr:
         for k in range(0, len(sp), 2):
             bot, top = sp[order[k]], sp[order[k + 1]]
             bside, tside = _as_side(bot, veps), _as_side(top, veps)
-            bmax = float(np.max(bot.H[:, 1] / bot.H[:, 2]))
-            tmin = float(np.min(top.H[:, 1] / top.H[:, 2]))
-            knots = [float(c) for c in vb[1:-1] if bmax + veps < c < tmin - veps]
+            for sd in (bside, tside):
+                fr.snapped += sd.iso and float(np.ptp(sd.H[:, 1] / sd.H[:, 2])) > 0
+            # A knot line c cuts the region iff min B < c < max T. Pieces are monotone in v (cut at
+            # their v-extrema), so their ends give their v-range exactly (the control polygon can
+            # overshoot it), and they never cross a knot line: c may touch B or T at one end only,
+            # which leaves a cell with one collapsed rung.
+            bmin = float(min(bot.H[0, 1] / bot.H[0, 2], bot.H[-1, 1] / bot.H[-1, 2]))
+            tmax = float(max(top.H[0, 1] / top.H[0, 2], top.H[-1, 1] / top.H[-1, 2]))
+            knots = [float(c) for c in vb[1:-1] if bmin + veps < c < tmax - veps]
             sides = [bside] + [_iso_side(ua, ubb, c) for c in knots] + [tside]
             for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
                 yield ua, ubb, s0, s1
@@ -456,19 +497,17 @@ def _split_side(side: Side, u: float) -> tuple[Side, Side]:
     t = _t_at_u(side.H, u)
     w = side.w0 + t * (side.w1 - side.w0)
     return (
-        Side(curve_segment(side.H, 0.0, t), side.iso, side.edge, side.w0, w, side.degenerate),
-        Side(curve_segment(side.H, t, 1.0), side.iso, side.edge, w, side.w1, side.degenerate),
+        Side(curve_segment(side.H, 0.0, t), side.iso, side.edge, side.w0, w, side.degenerate, side.pcurve),
+        Side(curve_segment(side.H, t, 1.0), side.iso, side.edge, w, side.w1, side.degenerate, side.pcurve),
     )
 
 
 class _FaceContext:
-    def __init__(self, face: Face, tol: float, max_degree: int):
-        s = face.surface
+    def __init__(self, face: Face, g: _FaceGeometry, tol: float, max_degree: int):
         self.face = face
-        self.rational = s.rational
-        h = s.homogeneous()
-        self.ub, self.vb, self.spans = surface_to_bezier(s.uknots, s.vknots, s.udegree, s.vdegree, h)
-        self.m, self.n = s.udegree, s.vdegree
+        self.rational = g.rational
+        self.ub, self.vb, self.spans = g.ub, g.vb, g.spans
+        self.m, self.n = g.m, g.n
         self.tol = tol
         self.max_degree = max_degree
 
@@ -497,7 +536,7 @@ class _FaceContext:
             return self._approximate(ua, ubb, bot, top, P, (U0, du, V0, dv), fr, depth)
         det = _phi_jacobian(U, V, W)
         if not np.all(det > 0):
-            if depth >= _MAX_SPLIT_DEPTH:
+            if depth >= _MAX_FOLD_DEPTH:
                 fr.folds += 1
                 fr.problems.append(f"a folded cell near u = {um:.6g}, v = {vm:.6g} could not be split away")
             else:
@@ -534,12 +573,13 @@ class _FaceContext:
         budget = 0.5 * self.tol
         Qr, mr, nr, serr, est = self._reduce_surface(Q, budget * 0.5)
         q = max(1, self.max_degree // (mr + nr))
-        lip = _lipschitz(Qr, self.rational)
+        lu, lv = _lipschitz(Qr, self.rational)
         sides, perr, pest = [], 0.0, False
         for S in (Bq, Tq):
-            Sr, e, es = _reduce_side(S, q)
+            Sr, (eu, ev), es = _reduce_side(S, q)
             sides.append(Sr)
-            perr = max(perr, lip * e)
+            # per axis: a thin tall cell has a large v-speed but its sides barely move in v
+            perr = max(perr, lu * eu + lv * ev)
             pest |= es
         total = serr + perr
         if total > self.tol or mr + nr > self.max_degree:
@@ -589,9 +629,9 @@ class _FaceContext:
         return R, mr, nr, e, False
 
 
-def _lipschitz(Q: np.ndarray, rational: bool) -> float:
-    """Bound of |dS/du| + |dS/dv| over [0, 1]^2 for a Bezier net: the hodograph's convex hull,
-    m max |P_i+1,j - P_ij| (+ the same in v). For rational nets the factor (w_max / w_min)^2 of the
+def _lipschitz(Q: np.ndarray, rational: bool) -> tuple[float, float]:
+    """Bounds of |dS/du| and |dS/dv| over [0, 1]^2 for a Bezier net: the hodograph's convex hull,
+    m max |P_i+1,j - P_ij| (and the same in v). For rational nets the factor (w_max / w_min)^2 of the
     rational derivative bound (Floater 1992) multiplies the Cartesian control-point differences."""
     if rational:
         w = Q[..., -1]
@@ -602,17 +642,20 @@ def _lipschitz(Q: np.ndarray, rational: bool) -> float:
     m, n = P.shape[0] - 1, P.shape[1] - 1
     lu = m * np.max(np.linalg.norm(np.diff(P, axis=0), axis=-1)) if m else 0.0
     lv = n * np.max(np.linalg.norm(np.diff(P, axis=1), axis=-1)) if n else 0.0
-    return float(f * (lu + lv))
+    return float(f * lu), float(f * lv)
 
 
-def _reduce_side(S: np.ndarray, q: int) -> tuple[np.ndarray, float, bool]:
-    """Degree-q polynomial side for the homogeneous side S (ends kept). Returns (H, uv bound, estimated)."""
+def _reduce_side(S: np.ndarray, q: int) -> tuple[np.ndarray, tuple[float, float], bool]:
+    """Degree-q polynomial side for the homogeneous side S (ends kept). Returns (H, (u bound, v bound),
+    estimated); the bounds are parametric (same s on both curves), per coordinate."""
     k = S.shape[0] - 1
     if _polynomial(S):
         if k <= q:
-            return S, 0.0, False
-        R, e = reduce_curve(S[:, :2], q, fix_ends=1)
-        return np.concatenate([R, np.ones((q + 1, 1))], axis=1), float(e), False
+            return S, (0.0, 0.0), False
+        R, _ = reduce_curve(S[:, :2], q, fix_ends=1)
+        # convex hull of the difference at the common degree, per coordinate: certified
+        d = np.max(np.abs(elevate_curve(R, k - q) - S[:, :2]), axis=0)
+        return np.concatenate([R, np.ones((q + 1, 1))], axis=1), (float(d[0]), float(d[1])), False
     # rational: least squares on samples, ends interpolated; the bound is sampled (estimated)
     t = np.linspace(0, 1, 8 * (q + 1) + 1)
     pts = _eval(S, t)
@@ -623,8 +666,8 @@ def _reduce_side(S: np.ndarray, q: int) -> tuple[np.ndarray, float, bool]:
         rhs = pts - np.outer(M[:, 0], R[0]) - np.outer(M[:, -1], R[-1])
         R[1:-1] = np.linalg.lstsq(M[:, 1:-1], rhs, rcond=None)[0]
     tt = np.linspace(0, 1, 257)
-    e = float(np.max(np.linalg.norm(_eval(S, tt) - basis(q, tt) @ R, axis=1)))
-    return np.concatenate([R, np.ones((q + 1, 1))], axis=1), 1.5 * e, True
+    d = 1.5 * np.max(np.abs(_eval(S, tt) - basis(q, tt) @ R), axis=0)
+    return np.concatenate([R, np.ones((q + 1, 1))], axis=1), (float(d[0]), float(d[1])), True
 
 
 # --------------------------------------------------------------------------------------------- driver
@@ -656,31 +699,33 @@ def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]]) -> float:
     return worst
 
 
-def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray]) -> tuple[list[_Piece], float]:
+def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray],
+                 g: _FaceGeometry) -> tuple[list[_Piece], float]:
     """The face's pcurve pieces, cut at the edge plan, with the loops closed exactly; and the largest
     uv move made to close them."""
-    s = face.surface
-    sb = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
     chains: list[list[tuple[_Coedge, list[_Piece]]]] = [[] for _ in face.loops]
     for ce in _coedges(face, model):
-        params = plan.get(ce.edge) if not ce.degenerate else np.array(_needs(ce, sb))
+        params = plan.get(ce.edge) if not ce.degenerate else np.array(_needs(ce, g.breaks, (g.ueps, g.veps)))
         params = np.array([]) if params is None else params
         params = params[(params > ce.first) & (params < ce.last)]
-        ps = [_Piece(H.copy(), ce.edge, w0, w1, ce.degenerate) for w0, w1, H in _span_pieces(ce, params)]
+        ps = [_Piece(H.copy(), ce.edge, w0, w1, ce.degenerate, ce.curve)
+              for w0, w1, H in _span_pieces(ce, params)]
         chains[ce.loop].append((ce, ps))
     move = _close_loops(chains)
     return [p for chain in chains for _, ps in chain for p in ps], move
 
 
-def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances) -> FaceResult:
+def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
+                g: _FaceGeometry | None = None) -> FaceResult:
     fr = FaceResult(face.index)
-    ctx = _FaceContext(face, tol.approx_rel * model.diagonal, tol.max_degree)
-    pieces, move = _face_pieces(face, model, plan)
-    if move > 0:
-        fr.closure = move * max(_lipschitz(P, ctx.rational) / min(ctx.ub[1] - ctx.ub[0], ctx.vb[1] - ctx.vb[0])
-                                for P in ctx.spans.reshape((-1,) + ctx.spans.shape[2:]))
-    for ua, ubb, bot, top in _cells(face, pieces, ctx.ub, ctx.vb, fr):
+    g = g or _FaceGeometry(face, model.diagonal, tol)
+    ctx = _FaceContext(face, g, tol.approx_rel * model.diagonal, tol.max_degree)
+    pieces, move = _face_pieces(face, model, plan, g)
+    fr.closure = move * g.speed
+    for ua, ubb, bot, top in _cells(face, pieces, g, fr):
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
+    if fr.snapped:
+        fr.closure += g.snap
     approx = [p for p in fr.patches if p.approximated]
     fr.approximated = bool(approx)
     fr.estimated = any(p.estimated for p in approx)
@@ -690,11 +735,12 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
 
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     """Stage 1 on a whole model. ``progress`` (optional) is called once per face."""
-    plan = edge_plan(model)
+    geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
+    plan = edge_plan(model, geoms)
     faces = []
-    for face in model.faces:
+    for face, g in zip(model.faces, geoms, strict=True):
         try:
-            faces.append(untrim_face(face, model, plan, tol))
+            faces.append(untrim_face(face, model, plan, tol, g))
         except UntrimError as exc:
             fr = FaceResult(face.index)
             fr.problems.append(str(exc))

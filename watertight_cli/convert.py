@@ -1,0 +1,142 @@
+"""``watertight convert``: read -> stage 1 (untrim) -> verify -> build -> write, with a report.
+
+Only stage 1 exists so far (issue #5 builds stage 2, the shared boundaries). The output of stage 1
+is a compound of untrimmed Bezier faces, one per patch: each face keeps its input face's shape
+within the reported bound, but neighbours do not share edges yet.
+
+Nothing is written when the verify step fails: a wrong model is worse than no model.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections import Counter
+from pathlib import Path
+
+from . import __version__
+from .errors import WatertightError
+from .tolerances import Tolerances
+
+STAGES = ("untrim",)
+
+
+class VerifyError(WatertightError):
+    """The converted model failed the own verify step; nothing was written."""
+
+
+def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untrim",
+                 progress=None, overwrite: bool = True) -> dict:
+    """Convert one file; returns its report. ``dst`` None: convert and verify, write nothing.
+
+    ``progress(stage_name, total)`` returns a callable advanced by one per face, or None.
+    Raises WatertightError (one line, naming the file) on any failure, before anything is written.
+    """
+    from .inspect import inspect
+    from .occ.build import compound, input_face_areas, patch_face
+    from .occ.io import write_shape
+    from .untrim import untrim
+    from .verify import verify_untrim
+
+    if stage not in STAGES:
+        raise WatertightError(f"{src}: stage {stage!r} is not built yet")
+    if dst is not None and Path(dst).exists() and not overwrite:
+        raise WatertightError(f"{dst}: exists (use --overwrite to replace it)")
+    times: dict[str, float] = {}
+    t0 = time.perf_counter()
+    ins = inspect(src, tol)
+    model = ins.model
+    times["read"] = time.perf_counter() - t0
+
+    t = time.perf_counter()
+    tick = progress("untrim", len(model.faces)) if progress else None
+    result = untrim(model, tol, tick)
+    times["untrim"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    areas = input_face_areas(ins.shape)
+    tick = progress("verify", len(model.faces)) if progress else None
+    check = verify_untrim(model, result, tol, areas, tick)
+    times["verify"] = time.perf_counter() - t
+
+    report = untrim_report(ins, result, check, tol, src, dst)
+    report["timings"] = times
+    if not check.ok:
+        first = check.problems[0]
+        more = len(check.problems) - 1
+        raise VerifyError(f"{src}: verify failed, nothing written: {first}"
+                          + (f" (and {more} more)" if more else ""))
+    if dst is not None:
+        t = time.perf_counter()
+        faces = [patch_face(p.ctrl, p.rational, model.faces[p.face].reversed) for p in result.patches]
+        write_shape(compound(faces), dst, overwrite=overwrite)
+        times["write"] = time.perf_counter() - t
+    report["timings"] = times
+    return report
+
+
+def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None) -> dict:
+    from .report import SCHEMA_VERSION
+
+    model = ins.model
+    degrees = [max(p.degrees) for p in result.patches]
+    faces = []
+    for fr, fc in zip(result.faces, check.faces, strict=True):
+        fd = [max(p.degrees) for p in fr.patches]
+        faces.append({
+            "face": fr.face,
+            "surface_type": model.faces[fr.face].surface_type,
+            "patches": len(fr.patches),
+            "max_degree": max(fd, default=0),
+            "approximated": fr.approximated,
+            "bound": fr.bound,
+            "bound_is_estimate": fr.estimated,
+            "deviation_sampled": fc.deviation,
+            "side_deviation_sampled": fc.side_deviation,
+            "loop_closure": fr.closure,
+            "area_in": fc.area_in,
+            "area_out": fc.area_out,
+            "folded_patches": fc.folded,
+            "collapsed_rungs": fc.collapsed_rungs,
+            "problems": fc.problems,
+        })
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "tool": f"watertight {__version__}",
+        "file": src,
+        "output": dst,
+        "stage": "untrim",
+        "length_unit": "mm",
+        "diagonal": model.diagonal,
+        "tolerance": result.tolerance,
+        "max_degree_allowed": result.max_degree,
+        "faces_in": len(model.faces),
+        "patches_out": len(degrees),
+        "degree": {
+            "max": max(degrees, default=0),
+            "median": statistics.median(degrees) if degrees else 0,
+            "histogram": {str(k): v for k, v in sorted(Counter(degrees).items())},
+        },
+        "approximated_faces": sum(f.approximated for f in result.faces),
+        "bound_max": max((f.bound for f in result.faces), default=0.0),
+        "deviation_max_sampled": max((c.deviation for c in check.faces), default=0.0),
+        "folded_patches": sum(c.folded for c in check.faces),
+        "collapsed_rungs": sum(c.collapsed_rungs for c in check.faces),
+        "verified": check.ok,
+        "faces": faces,
+    }
+
+
+def format_untrim_table(rep: dict) -> str:
+    d = rep["diagonal"]
+    lines = [
+        f"{rep['file']} -> {rep['output'] or '(not written)'}  [stage: {rep['stage']}]",
+        f"  faces in {rep['faces_in']}, patches out {rep['patches_out']}, degree max {rep['degree']['max']} "
+        f"median {rep['degree']['median']:g}, approximated faces {rep['approximated_faces']}",
+        f"  deviation: bound {rep['bound_max']:.3g} ({rep['bound_max'] / d:.2g} of the diagonal), sampled "
+        f"{rep['deviation_max_sampled']:.3g}; tolerance {rep['tolerance']:.3g}",
+        f"  folded patches {rep['folded_patches']}, collapsed rungs {rep['collapsed_rungs']}, "
+        f"verified {'yes' if rep['verified'] else 'NO'}",
+        "  time: " + ", ".join(f"{k} {v:.1f}s" for k, v in rep["timings"].items()),
+    ]
+    return "\n".join(lines)
