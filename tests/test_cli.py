@@ -130,3 +130,91 @@ def test_kernel_failure_names_the_file(monkeypatch):
     result = run("report", str(path))
     assert result.exit_code == EXIT_FAILED
     assert "cannot convert" in one_line_error(result, "sphere.step")
+
+
+# ------------------------------------------------------------------------------ convert (stage 1)
+
+
+def test_convert_untrim_writes_bezier_faces(tmp_path):
+    out = tmp_path / "sphere_out.step"
+    result = run("convert", "--stage", "untrim", "--json", "-q", str(fixture_path("sphere.step")), str(out))
+    assert result.exit_code == EXIT_OK, result.output
+    rep = json.loads(result.stdout)
+    assert rep["stage"] == "untrim" and rep["verified"] is True
+    assert rep["faces_in"] == 1 and rep["patches_out"] == 8
+    assert rep["degree"]["max"] <= 25 and rep["folded_patches"] == 0
+    assert rep["bound_max"] <= 1e-9 * rep["diagonal"]
+    # read back with the kernel: every face is an untrimmed Bezier patch
+    from OCP.BRep import BRep_Tool
+    from OCP.Geom import Geom_BezierSurface
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopoDS import TopoDS
+
+    from watertight_cli.occ.extract import indexed
+    from watertight_cli.occ.io import read_shape
+
+    shape = read_shape(out).shape
+    fmap = indexed(shape, TopAbs_FACE)
+    assert fmap.Extent() == 8
+    for i in range(1, fmap.Extent() + 1):
+        surf = BRep_Tool.Surface_s(TopoDS.Face_s(fmap.FindKey(i)))
+        # STEP has no Bezier entity: a Bezier patch comes back as a one-span B-spline
+        assert isinstance(surf, Geom_BezierSurface) or (surf.NbUKnots() == 2 and surf.NbVKnots() == 2)
+
+
+def test_convert_is_deterministic(tmp_path):
+    a, b = tmp_path / "a" / "t.step", tmp_path / "b" / "t.step"
+    for out in (a, b):
+        out.parent.mkdir()
+        result = run("convert", "--stage", "untrim", "-q", str(fixture_path("torus.step")), str(out))
+        assert result.exit_code == 0
+    assert a.read_bytes() == b.read_bytes()  # I6: same input and options, same bytes
+
+
+def test_convert_full_stage_is_refused_honestly(tmp_path):
+    out = tmp_path / "o.step"
+    result = run("convert", str(fixture_path("sphere.step")), str(out))
+    assert result.exit_code == EXIT_USAGE
+    assert "stage 2" in one_line_error(result, "not built yet")
+    assert not out.exists()
+
+
+def test_convert_bad_input_leaves_no_output(tmp_path):
+    out = tmp_path / "o.step"
+    result = run("convert", "--stage", "untrim", str(fixture_path("broken/garbage.step")), str(out))
+    assert result.exit_code == EXIT_FAILED
+    one_line_error(result, "garbage.step")
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_convert_json_error_document(tmp_path):
+    result = run("convert", "--stage", "untrim", "--json", "-q", str(tmp_path / "nope.step"),
+                 str(tmp_path / "o.step"))
+    assert result.exit_code == EXIT_FAILED
+    doc = json.loads(result.stdout)
+    assert "nope.step" in doc["error"]
+
+
+def test_convert_no_overwrite(tmp_path):
+    out = tmp_path / "o.step"
+    out.write_text("keep me")
+    result = run("convert", "--stage", "untrim", "--no-overwrite", str(fixture_path("sphere.step")), str(out))
+    assert result.exit_code == EXIT_FAILED
+    assert out.read_text() == "keep me"
+
+
+def test_convert_max_degree_option_is_respected(tmp_path):
+    out = tmp_path / "o.step"
+    result = run("convert", "--stage", "untrim", "--json", "-q", "--max-degree", "20",
+                 str(fixture_path("loft_minus_cylinder.step")), str(out))
+    assert result.exit_code == EXIT_OK, result.output
+    rep = json.loads(result.stdout)
+    assert rep["degree"]["max"] <= 20 and rep["verified"]
+    assert rep["bound_max"] <= 1e-6 * rep["diagonal"] * 1.01
+
+
+def test_convert_help_explains_stages():
+    result = run("convert", "--help")
+    assert result.exit_code == 0
+    for word in ("--stage", "untrim", "--max-degree", "--tolerance", "atomically"):
+        assert word in result.output

@@ -1,7 +1,7 @@
 """``watertight convert``: read -> stage 1 (untrim) -> verify -> build -> write, with a report.
 
 Only stage 1 exists so far (issue #5 builds stage 2, the shared boundaries). The output of stage 1
-is a compound of untrimmed Bezier faces, one per patch: each face keeps its input face's shape
+is one open shell of untrimmed Bezier faces, one per patch: each face keeps its input face's shape
 within the reported bound, but neighbours do not share edges yet.
 
 Nothing is written when the verify step fails: a wrong model is worse than no model.
@@ -33,7 +33,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untri
     Raises WatertightError (one line, naming the file) on any failure, before anything is written.
     """
     from .inspect import inspect
-    from .occ.build import compound, input_face_areas, patch_face
+    from .occ.build import input_face_areas, open_shell, patch_face
     from .occ.io import write_shape
     from .untrim import untrim
     from .verify import verify_untrim
@@ -69,7 +69,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untri
     if dst is not None:
         t = time.perf_counter()
         faces = [patch_face(p.ctrl, p.rational, model.faces[p.face].reversed) for p in result.patches]
-        write_shape(compound(faces), dst, overwrite=overwrite)
+        write_shape(open_shell(faces), dst, overwrite=overwrite)
         times["write"] = time.perf_counter() - t
     report["timings"] = times
     return report

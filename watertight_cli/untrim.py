@@ -90,6 +90,7 @@ class Patch:
     bound: float = 0.0
     estimated: bool = False
     approximated: bool = False
+    box: bool = False  # a sub-box of a span: u runs linearly between the rungs on both sides
 
     @property
     def degrees(self) -> tuple[int, int]:
@@ -490,6 +491,19 @@ def _phi_jacobian(U, V, W, n: int = 9) -> np.ndarray:
     return us * vt - ut * vs
 
 
+def _own_parameter(side: Side) -> bool:
+    """An edge side whose parameter is not affine in u (its u control values are not evenly spaced),
+    so a sub-box (u linear in s) would not carry the edge's parameter."""
+    if side.edge is None:
+        return False
+    H = side.H
+    u = H[:, 0] / H[:, 2]
+    k = len(u) - 1
+    even = u[0] + (u[-1] - u[0]) * np.arange(k + 1) / max(k, 1)
+    atol = 1e-12 * max(abs(u[-1] - u[0]), 1e-300)
+    return not (_polynomial(H) and np.allclose(u, even, rtol=0.0, atol=atol))
+
+
 def _split_side(side: Side, u: float) -> tuple[Side, Side]:
     if side.iso and side.edge is None:
         a, b, c = side.H[0, 0], side.H[-1, 0], side.H[0, 1]
@@ -524,9 +538,15 @@ class _FaceContext:
         V0, dv = self.vb[j], self.vb[j + 1] - self.vb[j]
         P = self.spans[i, j]
         if bot.iso and top.iso:
-            c0, c1 = bot.H[0, 1] / bot.H[0, 2], top.H[0, 1] / top.H[0, 2]
-            ctrl = surface_subbox(P, (ua - U0) / du, (ubb - U0) / du, (c0 - V0) / dv, (c1 - V0) / dv)
-            return [Patch(self.face.index, ctrl, self.rational, bot, top)]
+            own_b, own_t = _own_parameter(bot), _own_parameter(top)
+            if not (own_b or own_t):
+                c0, c1 = bot.H[0, 1] / bot.H[0, 2], top.H[0, 1] / top.H[0, 2]
+                ctrl = surface_subbox(P, (ua - U0) / du, (ubb - U0) / du, (c0 - V0) / dv, (c1 - V0) / dv)
+                return [Patch(self.face.index, ctrl, self.rational, bot, top, box=True)]
+            if own_b != own_t:
+                out = self._follow(bot if own_b else top, bot, top, P, (U0, du, V0, dv))
+                if out is not None:
+                    return [out]
         B = _localize(bot.H, U0, du, V0, dv)
         T = _localize(top.H, U0, du, V0, dv)
         U, V, W = _map_grids(B, T)
@@ -550,12 +570,28 @@ class _FaceContext:
             rational = True
         return [Patch(self.face.index, ctrl, rational, bot, top)]
 
+    def _follow(self, E: Side, bot: Side, top: Side, P, frame) -> Patch | None:
+        """A cell between two v-iso lines where one side is an edge whose parameter is not affine in
+        u: phi(s, t) = (u_E(s), (1 - t) c0 + t c1) keeps the edge's parameter on that side at
+        bidegree (m k, n), against (m + n) k for the ruled map. None when over the budget."""
+        U0, du, V0, dv = frame
+        k = E.H.shape[0] - 1
+        if not _polynomial(E.H) or self.m * k > self.max_degree:
+            return None
+        c0, c1 = bot.H[0, 1] / bot.H[0, 2], top.H[0, 1] / top.H[0, 2]
+        u = (E.H[:, 0] - U0) / du
+        ctrl = compose(P, np.stack([u, u], 1), np.array([[(c0 - V0) / dv, (c1 - V0) / dv]]))
+        follow = lambda side, c: side if side is E else Side(  # noqa: E731
+            np.stack([E.H[:, 0], np.full(k + 1, c), np.ones(k + 1)], 1), True)
+        return Patch(self.face.index, ctrl, self.rational, follow(bot, c0), follow(top, c1))
+
     def _halve(self, ua, ubb, bot, top, fr, depth):
         um = 0.5 * (ua + ubb)
         b0, b1 = _split_side(bot, um)
         t0, t1 = _split_side(top, um)
         fr.local_cuts += (bot.edge is not None) + (top.edge is not None)
-        return self.cell_patches(ua, um, b0, t0, fr, depth + 1) + self.cell_patches(um, ubb, b1, t1, fr, depth + 1)
+        left = self.cell_patches(ua, um, b0, t0, fr, depth + 1)
+        return left + self.cell_patches(um, ubb, b1, t1, fr, depth + 1)
 
     def _approximate(self, ua, ubb, bot: Side, top: Side, P, frame, fr: FaceResult, depth: int):
         """Over the degree budget: reduce the surface on the cell's box and the sides' degrees; halve
@@ -762,7 +798,7 @@ def patch_points(patch: Patch, s: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def cell_map(patch: Patch, s: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The exact cell map phi(s, t) in the face's global uv on the grid s x t -> (len(s), len(t), 2)."""
-    if patch.bottom.iso and patch.top.iso:
+    if patch.box:
         # a sub-box: u runs linearly between the rungs on both sides (whatever the pieces' own parameter)
         lin = lambda H: np.outer(1 - s, H[0, :2] / H[0, 2]) + np.outer(s, H[-1, :2] / H[-1, 2])  # noqa: E731
         b, tp = lin(patch.bottom.H), lin(patch.top.H)

@@ -9,7 +9,8 @@ intermediate Bezier pieces that built the patches:
   affinely over the piece's edge parameters, the pcurve evaluated as the B-spline it is in the
   input. This is the property stage 2 relies on.
 * **area**: the summed patch areas (Gauss-Legendre on the patches) against the trimmed face's area
-  measured by the kernel (passed in, as OCCT is not imported here).
+  measured by the kernel (passed in, as OCCT is not imported here), allowing 1e-6 of the area,
+  the deviation bound times a perimeter scale, and the spread of the kernel's two integrators.
 * **folds**: the patch normal against the surface normal at the mapped points; a patch that turns
   over has a negative product somewhere.
 """
@@ -99,7 +100,8 @@ def _surface_normals(surface, uv: np.ndarray, h: np.ndarray) -> np.ndarray:
     return np.cross(su, sv)
 
 
-def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | None) -> FaceCheck:
+def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | None,
+                area_spread: float = 0.0) -> FaceCheck:
     face = model.faces[fr.face]
     surf = face.surface
     slack = tol.exact_rel * model.diagonal
@@ -152,7 +154,7 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
         area_out += patch_area(p)
     if area_in is not None and area_in > 0:
         perimeter = 4.0 * np.sqrt(area_in)  # of a square of the same area: a scale, not a bound
-        allowed = 1e-6 * area_in + 2.0 * perimeter * fr.bound
+        allowed = 1e-6 * area_in + 2.0 * perimeter * fr.bound + area_spread
         if abs(area_out - area_in) > allowed:
             problems.append(f"face {fr.face}: patch area {area_out:.9g} differs from the face area "
                             f"{area_in:.9g} by more than {allowed:.3g}")
@@ -164,10 +166,12 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
 
 def verify_untrim(model: Model, result: UntrimResult, tol: Tolerances,
                   areas: np.ndarray | None = None, progress=None) -> Verification:
-    """Check every face of a stage-1 result (see module doc). ``areas``: kernel face areas, or None."""
+    """Check every face of a stage-1 result (see module doc). ``areas``: (faces, 2) kernel face areas
+    and their uncertainty (see ``occ.build.face_area``), or None to skip the area check."""
     checks = []
     for fr in result.faces:
-        checks.append(_check_face(fr, model, tol, None if areas is None else float(areas[fr.face])))
+        ref = (None, 0.0) if areas is None else (float(areas[fr.face, 0]), float(areas[fr.face, 1]))
+        checks.append(_check_face(fr, model, tol, *ref))
         if progress is not None:
             progress(1)
     return Verification(checks)

@@ -220,7 +220,8 @@ def compose(ctrl, U, V, max_degree: int | None = None, W=None) -> np.ndarray:
     if W is not None:
         W = np.asarray(W, dtype=float)
         if not (W.shape == U.shape == V.shape):
-            raise ValueError(f"compose: a rational map needs U, V, W of one shape; got {U.shape}, {V.shape}, {W.shape}")
+            raise ValueError(
+                f"compose: a rational map needs U, V, W of one shape; got {U.shape}, {V.shape}, {W.shape}")
     if ctrl.ndim < 2 or U.ndim != 2 or V.ndim != 2:
         raise ValueError(
             f"compose: need ctrl (m+1, n+1, d), U (a+1, b+1), V (c+1, e+1); got {ctrl.shape}, {U.shape}, "

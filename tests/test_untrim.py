@@ -1,0 +1,231 @@
+"""Stage 1 (untrim): the numeric pieces on small synthetic cases, and every fixture through
+read -> untrim -> verify, checked against invariants I1 (Bezier on [0,1]^2), I4 (exact where no
+approximation was needed, else within the reported bound) and I5 (degrees, no folds)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from watertight_cli.tolerances import Tolerances
+from watertight_cli.untrim import (
+    Patch,
+    Side,
+    _cells,
+    _close_loops,
+    _FaceContext,
+    _own_parameter,
+    _reduce_side,
+    cell_map,
+    patch_points,
+)
+
+from .conftest import fixture_models, fixture_path
+
+TOL = Tolerances()
+
+
+# ----------------------------------------------------------------------------------- small pieces
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=10, max_size=10), st.integers(1, 3))
+def test_reduced_side_stays_within_its_certified_bound(ys, q):
+    """_reduce_side's per-axis bound holds at every sample (convex hull of the difference)."""
+    k = 5
+    u = np.linspace(0.0, 1.0, k + 1)
+    v = np.array(ys[: k + 1]) * 0.2
+    S = np.stack([u, v, np.ones(k + 1)], axis=1)
+    R, (eu, ev), est = _reduce_side(S, q)
+    assert not est
+    t = np.linspace(0, 1, 101)
+    from watertight_cli.core.bernstein import basis
+
+    a = basis(k, t) @ S[:, :2]
+    b = basis(R.shape[0] - 1, t) @ R[:, :2]
+    assert np.all(np.abs(a[:, 0] - b[:, 0]) <= eu + 1e-14)
+    assert np.all(np.abs(a[:, 1] - b[:, 1]) <= ev + 1e-14)
+    assert np.allclose(R[[0, -1], :2], S[[0, -1], :2])  # ends kept
+
+
+def test_own_parameter_detects_non_affine_edge_sides():
+    line = np.array([[0.0, 1.0, 1.0], [0.5, 1.0, 1.0], [1.0, 1.0, 1.0]])
+    bent = np.array([[0.0, 1.0, 1.0], [0.2, 1.0, 1.0], [1.0, 1.0, 1.0]])
+    assert not _own_parameter(Side(line, True, edge=3))
+    assert _own_parameter(Side(bent, True, edge=3))
+    assert not _own_parameter(Side(bent, True))  # no edge: no parameter to keep
+
+
+def test_close_loops_snaps_consecutive_ends_to_their_midpoint():
+    from watertight_cli.untrim import _Coedge, _Piece
+
+    def piece(a, b):
+        return _Piece(np.array([[*a, 1.0], [*b, 1.0]]), 0, 0.0, 1.0, False)
+
+    pa, pb = piece((0, 0), (1, 0)), piece((1, 1e-9), (0, 0))
+    ce = _Coedge(0, False, None, 0.0, 1.0, np.array([0.0, 1.0]), np.zeros((1, 2, 3)))
+    move = _close_loops([[(ce, [pa]), (ce, [pb])]])
+    assert move == pytest.approx(0.5e-9)
+    assert np.array_equal(pa.H[-1], pb.H[0])
+    assert np.array_equal(pb.H[-1], pa.H[0])
+
+
+# ------------------------------------------------------------------ a synthetic face, end to end
+
+
+def _square_surface():
+    """A bicubic patch over [0, 1]^2 as a one-span B-spline in the model's arrays."""
+    from watertight_cli.model import BSplineSurface
+
+    rng = np.random.default_rng(7)
+    g = np.linspace(0, 1, 4)
+    P = np.stack(np.meshgrid(g, g, indexing="ij"), -1)
+    P = np.concatenate([P, 0.2 * rng.standard_normal((4, 4, 1))], axis=-1)
+    kn = np.array([0, 0, 0, 0, 1, 1, 1, 1.0])
+    return BSplineSurface(udegree=3, vdegree=3, uknots=kn, vknots=kn, poles=P, weights=None), P
+
+
+def test_ruled_cell_under_a_cubic_trim_is_exact():
+    """A cell between the v = 0 line and a cubic trim curve composes exactly (degree (6, 6*3))."""
+    surf, P = _square_surface()
+    ctx = _FaceContext.__new__(_FaceContext)
+    ctx.face = type("F", (), {"index": 0})()
+    ctx.rational, ctx.m, ctx.n = False, 3, 3
+    ctx.ub = ctx.vb = np.array([0.0, 1.0])
+    ctx.spans = P[None, None]
+    ctx.tol, ctx.max_degree = 1e-9, 25
+    bottom = Side(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]]), True)
+    trim = np.array([[0.0, 0.6, 1.0], [0.3, 0.9, 1.0], [0.7, 0.5, 1.0], [1.0, 0.8, 1.0]])
+    top = Side(trim, False, edge=1, w0=0.0, w1=1.0)
+    from watertight_cli.untrim import FaceResult
+
+    fr = FaceResult(0)
+    patches = ctx.cell_patches(0.0, 1.0, bottom, top, fr)
+    assert len(patches) == 1 and not fr.problems
+    p = patches[0]
+    assert p.degrees == (18, 6) and not p.approximated
+    s = np.linspace(0, 1, 13)
+    uv = cell_map(p, s, s).reshape(-1, 2)
+    ref = surf.evaluate(uv).reshape(13, 13, 3)
+    assert np.max(np.abs(patch_points(p, s, s) - ref)) < 1e-13
+
+
+# --------------------------------------------------------------------------- fixtures, pipeline
+
+
+@pytest.fixture(scope="module")
+def converted():
+    """Every fixture through read -> untrim -> verify, once per test module."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.occ.build import input_face_areas
+    from watertight_cli.untrim import untrim
+    from watertight_cli.verify import verify_untrim
+
+    out = {}
+    for name in fixture_models():
+        ins = inspect(str(fixture_path(name)), TOL)
+        res = untrim(ins.model, TOL)
+        out[name] = (ins, res, verify_untrim(ins.model, res, TOL, input_face_areas(ins.shape)))
+    return out
+
+
+@pytest.mark.parametrize("name", fixture_models())
+def test_fixture_untrims_and_verifies(converted, name):
+    ins, res, check = converted[name]
+    assert check.ok, check.problems[:3]
+    assert len(res.faces) == len(ins.model.faces)
+    assert all(f.patches for f in res.faces)  # every face kept
+
+
+@pytest.mark.parametrize("name", fixture_models())
+def test_fixture_invariants(converted, name):
+    ins, res, check = converted[name]
+    diag = ins.model.diagonal
+    for p in res.patches:  # I5: degrees within the budget
+        assert max(p.degrees) <= TOL.max_degree
+    for fr, fc in zip(res.faces, check.faces, strict=True):
+        assert fc.folded == 0  # I5: no folds
+        slack = TOL.exact_rel * diag
+        if not fr.approximated and ins.model.faces[fr.face].approximation == 0 and fr.closure == 0:
+            assert fc.deviation <= slack  # I4: exact where nothing was approximated
+        assert fc.deviation <= fr.bound + slack  # I4: within the reported bound
+        assert fr.bound <= TOL.approx_rel * diag + fr.closure + ins.model.faces[fr.face].approximation
+
+
+def test_exact_fixture_patches_match_surface_tightly(converted):
+    """The sphere converts without any approximation of our own: deviation at rounding level."""
+    ins, res, check = converted["sphere.step"]
+    assert not any(p.approximated for p in res.patches)
+    assert max(c.deviation for c in check.faces) < 1e-12 * ins.model.diagonal
+
+
+def test_patch_areas_add_up_to_the_face_areas(converted):
+    ins, res, check = converted["plate_with_holes.step"]
+    for fc in check.faces:
+        assert fc.area_out == pytest.approx(fc.area_in, rel=1e-5)
+
+
+def test_verify_catches_a_moved_patch(converted):
+    """The verify step is not a rubber stamp: a patch shifted by 1e-6 of the diagonal fails."""
+    from watertight_cli.verify import verify_untrim
+
+    ins, res, _ = converted["torus.step"]
+    p = res.faces[0].patches[0]
+    moved = Patch(p.face, p.ctrl.copy(), p.rational, p.bottom, p.top, p.bound)
+    shift = 1e-6 * ins.model.diagonal
+    if moved.rational:
+        moved.ctrl[..., 0] += shift * moved.ctrl[..., 3]
+    else:
+        moved.ctrl[..., 0] += shift
+    res.faces[0].patches[0] = moved
+    try:
+        check = verify_untrim(ins.model, res, TOL)
+        assert not check.ok
+        assert any("deviation" in msg for msg in check.problems)
+    finally:
+        res.faces[0].patches[0] = p
+
+
+def test_cells_cover_a_face_with_a_hole():
+    """The plate's top face has holes: its cells' summed uv area equals the trimmed uv area."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.untrim import FaceResult, _face_pieces, _FaceGeometry, edge_plan
+
+    ins = inspect(str(fixture_path("plate_with_holes.step")), TOL)
+    m = ins.model
+    geoms = [_FaceGeometry(f, m.diagonal, TOL) for f in m.faces]
+    plan = edge_plan(m, geoms)
+    holed = [f for f in m.faces if len(f.loops) > 1]
+    assert holed
+    face = holed[0]
+    g = geoms[face.index]
+    pieces, _ = _face_pieces(face, m, plan, g)
+    fr = FaceResult(face.index)
+    area = 0.0
+    x, w = np.polynomial.legendre.leggauss(16)
+    x, w = 0.5 * (x + 1), 0.5 * w
+    for _ua, _ub, bot, top in _cells(face, pieces, g, fr):
+        p = Patch(face.index, np.zeros((2, 2, 3)), False, bot, top)
+        # uv area of the cell by quadrature of the ruled map's Jacobian
+        h = 1e-7
+        a = cell_map(p, x, x)
+        du = (cell_map(p, np.clip(x + h, 0, 1), x) - cell_map(p, np.clip(x - h, 0, 1), x)) / (
+            np.clip(x + h, 0, 1) - np.clip(x - h, 0, 1))[:, None, None]
+        dt = (cell_map(p, x, np.clip(x + h, 0, 1)) - cell_map(p, x, np.clip(x - h, 0, 1))) / (
+            np.clip(x + h, 0, 1) - np.clip(x - h, 0, 1))[None, :, None]
+        jac = np.abs(du[..., 0] * dt[..., 1] - du[..., 1] * dt[..., 0])
+        area += float(w @ jac @ w)
+        assert a.shape == (16, 16, 2)
+    # reference: the shoelace area of the loops' sampled uv polygons (outer minus holes)
+    ref = 0.0
+    for loop in face.loops:
+        pts = []
+        for ce in loop.coedges:
+            ws = np.linspace(ce.first, ce.last, 200)
+            uv = ce.pcurve.evaluate(ws)
+            pts.append(uv[::-1] if ce.reversed else uv)
+        poly = np.concatenate(pts)
+        ref += 0.5 * (poly[:, 0] @ np.roll(poly[:, 1], -1) - poly[:, 1] @ np.roll(poly[:, 0], -1))
+    assert area == pytest.approx(abs(ref), rel=1e-4)
