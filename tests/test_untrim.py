@@ -201,7 +201,7 @@ def test_cells_cover_a_face_with_a_hole():
     assert holed
     face = holed[0]
     g = geoms[face.index]
-    pieces, _ = _face_pieces(face, m, plan, g)
+    pieces, _, _ = _face_pieces(face, m, plan, g)
     fr = FaceResult(face.index)
     area = 0.0
     x, w = np.polynomial.legendre.leggauss(16)

@@ -38,6 +38,11 @@ class Tolerances:
         Upper bound for the sewing tolerance of unconnected inputs: 2 % of the diagonal. Real
         IGES exports leave gaps up to ~1e-3 of the diagonal; anything wider than 2 % would join
         features that are meant to be separate.
+    sliver_rel:
+        Narrowest cell stage 1 makes, relative to the diagonal: slab lines closer than this (in
+        3D, through the surface's speed) are merged. 1e-8 of the diagonal is 1e-6 mm on a 100 mm
+        part, ten times OCCT's confusion tolerance (1e-7), so no patch side is shorter than what
+        the kernel keeps as an edge; the coverage this gives up is a strip at most this wide.
     max_degree:
         Largest patch degree (``--max-degree``). 25 is OCCT's Bezier limit
         (``Geom_BezierSurface::MaxDegree``).
@@ -51,6 +56,7 @@ class Tolerances:
     exact_rel: float = 1e-9
     watertight_rel: float = 1e-12
     sew_max_rel: float = 2e-2
+    sliver_rel: float = 1e-8
     max_degree: int = 25
     strict: bool = False
 

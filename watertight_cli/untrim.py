@@ -45,6 +45,7 @@ __all__ = ["Patch", "FaceResult", "UntrimResult", "untrim", "edge_plan", "Untrim
 
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
+_FLATTEN = 0.1  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
 _ROOT_SAMPLES = 48
 
 
@@ -108,6 +109,7 @@ class FaceResult:
     local_cuts: int = 0
     closure: float = 0.0  # deviation bound of closing the loops' uv gaps and snapping (model units)
     snapped: int = 0  # pieces treated as iso-lines though they wiggle (by less than the snap)
+    slivers: int = 0  # pieces narrower than a sliver (Tolerances.sliver_rel) left on a slab line
     problems: list[str] = field(default_factory=list)
 
 
@@ -272,7 +274,8 @@ class _FaceGeometry:
     variation that moves the surface point by less than ``snap`` (0.1 x ``exact_rel`` x diagonal)
     is treated as none: ``ueps = snap / max|dS/du|`` (and the same in v). Pieces narrower than
     ``ueps`` lie on a slab line; sides flatter than ``veps`` are iso-lines. The deviation this
-    causes is at most ``snap`` and is added to the face's bound when it happens.
+    causes is at most ``snap`` and is added to the face's bound when it happens. Slab lines
+    closer than ``ueps_lines`` (``Tolerances.sliver_rel``) merge, so no cell is a sliver.
     """
 
     def __init__(self, face: Face, diagonal: float, tol: Tolerances):
@@ -287,11 +290,14 @@ class _FaceGeometry:
             for j in range(len(dv)):
                 lu, lv = _lipschitz(self.spans[i, j], self.rational)
                 su, sv = max(su, lu / du[i]), max(sv, lv / dv[j])
+        self.su, self.sv = su, sv  # bounds of |dS/du| and |dS/dv|
         self.speed = su + sv  # bound of |dS/du| + |dS/dv| over the surface
         self.snap = 0.1 * tol.exact_rel * diagonal
         u0, u1, v0, v1 = face.uv_bounds
         self.ueps = max(1e-11 * max(u1 - u0, 1e-300), self.snap / su if su > 0 else 0.0)
         self.veps = max(1e-11 * max(v1 - v0, 1e-300), self.snap / sv if sv > 0 else 0.0)
+        # slab lines closer than a sliver merge (see Tolerances.sliver_rel)
+        self.ueps_lines = max(self.ueps, tol.sliver_rel * diagonal / su if su > 0 else 0.0)
         self.breaks = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
 
 
@@ -381,7 +387,7 @@ def _as_side(p: _Piece, veps: float) -> Side:
 
 def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
     """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc)."""
-    ub, vb, ueps, veps = g.ub, g.vb, g.ueps, g.veps
+    ub, vb, ueps, veps = g.ub, g.vb, g.ueps_lines, g.veps
     ends = []
     for p in pieces:
         ends.append(p.H[0, 0] / p.H[0, 2])
@@ -394,7 +400,10 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
         p = _orient_u(p)
         a, b = p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2]
         if b - a <= ueps:
-            fr.snapped += b - a > 0
+            if b - a > g.ueps:
+                fr.slivers += 1  # narrower than a sliver: its strip is left to the neighbours
+            else:
+                fr.snapped += b - a > 0
             continue  # a u-iso piece: it lies on a slab line
         inside = lines[(lines > a + ueps) & (lines < b - ueps)]
         rest = p
@@ -539,9 +548,15 @@ class _FaceContext:
         P = self.spans[i, j]
         if bot.iso and top.iso:
             own_b, own_t = _own_parameter(bot), _own_parameter(top)
-            if not (own_b or own_t):
+            ends_b = bot.H[[0, -1], 0] / bot.H[[0, -1], 2]
+            ends_t = top.H[[0, -1], 0] / top.H[[0, -1], 2]
+            # a box needs both sides over the same u-range; after sliver merging a side may end
+            # a little off the slab line, and then the ruled map below joins the true ends
+            same = np.allclose(ends_b, ends_t, rtol=0.0, atol=1e-12 * (self.ub[-1] - self.ub[0]))
+            if not (own_b or own_t) and same:
                 c0, c1 = bot.H[0, 1] / bot.H[0, 2], top.H[0, 1] / top.H[0, 2]
-                ctrl = surface_subbox(P, (ua - U0) / du, (ubb - U0) / du, (c0 - V0) / dv, (c1 - V0) / dv)
+                (a0, a1) = ends_b
+                ctrl = surface_subbox(P, (a0 - U0) / du, (a1 - U0) / du, (c0 - V0) / dv, (c1 - V0) / dv)
                 return [Patch(self.face.index, ctrl, self.rational, bot, top, box=True)]
             if own_b != own_t:
                 out = self._follow(bot if own_b else top, bot, top, P, (U0, du, V0, dv))
@@ -713,10 +728,42 @@ def _set_point(H: np.ndarray, row: int, uv: np.ndarray) -> None:
     H[row, :2] = uv * H[row, 2]
 
 
-def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]]) -> float:
+def _flatten(chains, g: _FaceGeometry, budget: float) -> tuple[dict[int, tuple], float]:
+    """Make near-iso coedges exact iso-lines: a coedge whose u (or v) stays within a band whose
+    half-width moves the surface point by at most ``budget`` gets that coordinate set to the band's
+    middle. Exporters approximate straight iso pcurves by splines that wiggle around the line
+    (1e-7 of the domain is common), and a wiggly near-vertical curve cannot bound slabs.
+    Returns ({id(coedge): (u or None, v or None)}, largest 3D move bound)."""
+    fixed: dict[int, tuple] = {}
+    worst = 0.0
+    for chain in chains:
+        for ce, ps in chain:
+            if ce.degenerate:
+                continue
+            uv = np.concatenate([p.H[:, :2] / p.H[:, 2:3] for p in ps])
+            vals: list[float | None] = [None, None]
+            for axis, speed in ((0, g.su), (1, g.sv)):
+                lo, hi = float(uv[:, axis].min()), float(uv[:, axis].max())
+                half = 0.5 * (hi - lo)
+                if half * speed <= budget:
+                    c = 0.5 * (lo + hi)
+                    for p in ps:
+                        p.H[:, axis] = c * p.H[:, 2]
+                    vals[axis] = c
+                    worst = max(worst, half * speed)
+            if vals[0] is not None and vals[1] is not None:
+                vals = [None, None]  # a point-like coedge: leave it to the loop closing
+            if vals != [None, None]:
+                fixed[id(ce)] = tuple(vals)
+    return fixed, worst
+
+
+def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict | None = None) -> float:
     """Make every loop exactly closed in uv: where one coedge ends and the next begins (in the loop's
-    travel order), both end control points move to the midpoint. Real files leave uv gaps up to the
-    vertex tolerance there. Returns the largest move (uv units)."""
+    travel order), both end control points move to the midpoint, except in a coordinate that
+    ``_flatten`` fixed on one of them, which wins. Real files leave uv gaps up to the vertex
+    tolerance there. Returns the largest move (uv units)."""
+    fixed = fixed or {}
     worst = 0.0
     for chain in chains:
         ends = []
@@ -729,16 +776,23 @@ def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]]) -> float:
             a = pa.H[ra, :2] / pa.H[ra, 2]
             b = pb.H[rb, :2] / pb.H[rb, 2]
             mid = 0.5 * (a + b)
+            fa = fixed.get(id(chain[i][0]), (None, None))
+            fb = fixed.get(id(chain[(i + 1) % len(chain)][0]), (None, None))
+            for axis in (0, 1):
+                pins = [f[axis] for f in (fa, fb) if f[axis] is not None]
+                if pins:
+                    mid[axis] = sum(pins) / len(pins)
             worst = max(worst, 0.5 * float(np.linalg.norm(a - b)))
             _set_point(pa.H, ra, mid)
             _set_point(pb.H, rb, mid)
     return worst
 
 
-def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray],
-                 g: _FaceGeometry) -> tuple[list[_Piece], float]:
-    """The face's pcurve pieces, cut at the edge plan, with the loops closed exactly; and the largest
-    uv move made to close them."""
+def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray], g: _FaceGeometry,
+                 budget: float = 0.0) -> tuple[list[_Piece], float, float]:
+    """The face's pcurve pieces, cut at the edge plan, near-iso coedges flattened (``_flatten``
+    within ``budget``, model units) and the loops closed exactly; with the largest uv move made to
+    close them and the largest 3D move made to flatten."""
     chains: list[list[tuple[_Coedge, list[_Piece]]]] = [[] for _ in face.loops]
     for ce in _coedges(face, model):
         params = plan.get(ce.edge) if not ce.degenerate else np.array(_needs(ce, g.breaks, (g.ueps, g.veps)))
@@ -747,8 +801,9 @@ def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray],
         ps = [_Piece(H.copy(), ce.edge, w0, w1, ce.degenerate, ce.curve)
               for w0, w1, H in _span_pieces(ce, params)]
         chains[ce.loop].append((ce, ps))
-    move = _close_loops(chains)
-    return [p for chain in chains for _, ps in chain for p in ps], move
+    fixed, flat = _flatten(chains, g, budget)
+    move = _close_loops(chains, fixed)
+    return [p for chain in chains for _, ps in chain for p in ps], move, flat
 
 
 def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
@@ -756,14 +811,15 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     fr = FaceResult(face.index)
     g = g or _FaceGeometry(face, model.diagonal, tol)
     ctx = _FaceContext(face, g, tol.approx_rel * model.diagonal, tol.max_degree)
-    pieces, move = _face_pieces(face, model, plan, g)
-    fr.closure = move * g.speed
+    pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal)
+    fr.closure = move * g.speed + flat
+    fr.approximated = flat > g.snap
     for ua, ubb, bot, top in _cells(face, pieces, g, fr):
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
     if fr.snapped:
         fr.closure += g.snap
     approx = [p for p in fr.patches if p.approximated]
-    fr.approximated = bool(approx)
+    fr.approximated = fr.approximated or bool(approx)
     fr.estimated = any(p.estimated for p in approx)
     fr.bound = max((p.bound for p in fr.patches), default=0.0) + face.approximation + fr.closure
     return fr
