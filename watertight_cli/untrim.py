@@ -847,8 +847,9 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
 
 def patch_points(patch: Patch, s: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Points of a patch on the grid s x t -> (len(s), len(t), 3)."""
-    h = np.einsum("ai,ijd,bj->abd", basis(patch.ctrl.shape[0] - 1, s), patch.ctrl,
-                  basis(patch.ctrl.shape[1] - 1, t))
+    C = patch.ctrl
+    m1, n1, d = C.shape
+    h = basis(n1 - 1, t)[None] @ (basis(m1 - 1, s) @ C.reshape(m1, n1 * d)).reshape(-1, n1, d)
     return h[..., :3] / h[..., 3:4] if patch.rational else h
 
 

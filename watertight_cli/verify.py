@@ -17,6 +17,7 @@ intermediate Bezier pieces that built the patches:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +32,12 @@ __all__ = ["FaceCheck", "Verification", "verify_untrim", "patch_area"]
 _GRID = 9  # samples per direction for the deviation and fold checks
 _SIDE = 33  # samples along each trimming side
 _GAUSS = 24  # Gauss-Legendre nodes per direction for areas
-
+_GAUSS_X = 0.5 * (np.polynomial.legendre.leggauss(_GAUSS)[0] + 1)
+_GAUSS_W = 0.5 * np.polynomial.legendre.leggauss(_GAUSS)[1]
+_GRIDS = {
+    "gauss": _GAUSS_X,
+    "interior": np.linspace(0.05, 0.95, _GRID),  # fold check: away from collapsed rungs and poles
+}
 
 @dataclass
 class FaceCheck:
@@ -64,20 +70,30 @@ class Verification:
         return [p for f in self.faces for p in f.problems]
 
 
-def _derivs(patch: Patch, s: np.ndarray, t: np.ndarray):
-    """Points and first partial derivatives of a patch on the grid s x t."""
+@functools.lru_cache(maxsize=256)
+def _bases(k: int, grid: str) -> tuple[np.ndarray, np.ndarray]:
+    """Bernstein values and derivatives of degree k on one of the fixed sample grids."""
+    x = _GRIDS[grid]
+    b = basis(k, x)
+    if k == 0:
+        return b, np.zeros((len(x), 1))
+    lower = basis(k - 1, x)
+    return b, k * (np.pad(lower, ((0, 0), (1, 0))) - np.pad(lower, ((0, 0), (0, 1))))
+
+
+def _tensor(Bs: np.ndarray, C: np.ndarray, Bt: np.ndarray) -> np.ndarray:
+    """sum_ij Bs[a, i] C[i, j] Bt[b, j] -> (a, b, d), as two matmuls."""
+    m1, n1, d = C.shape
+    X = (Bs @ C.reshape(m1, n1 * d)).reshape(-1, n1, d)
+    return Bt[None] @ X
+
+
+def _derivs(patch: Patch, grid: str):
+    """Points and first partial derivatives of a patch on the grid x grid."""
     C = patch.ctrl
     m, n = C.shape[0] - 1, C.shape[1] - 1
-
-    def dbasis(k, x):
-        if k == 0:
-            return np.zeros((len(x), 1))
-        return k * (np.pad(basis(k - 1, x), ((0, 0), (1, 0))) - np.pad(basis(k - 1, x), ((0, 0), (0, 1))))
-
-    Bs, Bt, dBs, dBt = basis(m, s), basis(n, t), dbasis(m, s), dbasis(n, t)
-    h = np.einsum("ai,ijd,bj->abd", Bs, C, Bt)
-    hs = np.einsum("ai,ijd,bj->abd", dBs, C, Bt)
-    ht = np.einsum("ai,ijd,bj->abd", Bs, C, dBt)
+    (Bs, dBs), (Bt, dBt) = _bases(m, grid), _bases(n, grid)
+    h, hs, ht = _tensor(Bs, C, Bt), _tensor(dBs, C, Bt), _tensor(Bs, C, dBt)
     if not patch.rational:
         return h, hs, ht
     w, ws, wt = h[..., 3:], hs[..., 3:], ht[..., 3:]
@@ -85,19 +101,10 @@ def _derivs(patch: Patch, s: np.ndarray, t: np.ndarray):
     return p, (hs[..., :3] - p * ws) / w, (ht[..., :3] - p * wt) / w
 
 
-def patch_area(patch: Patch, nodes: int = _GAUSS) -> float:
-    x, wq = np.polynomial.legendre.leggauss(nodes)
-    x, wq = 0.5 * (x + 1), 0.5 * wq
-    _, ps, pt = _derivs(patch, x, x)
-    return float(np.einsum("a,b,ab->", wq, wq, np.linalg.norm(np.cross(ps, pt), axis=-1)))
-
-
-def _surface_normals(surface, uv: np.ndarray, h: np.ndarray) -> np.ndarray:
-    du = np.array([h[0], 0.0])
-    dv = np.array([0.0, h[1]])
-    su = surface.evaluate(uv + du) - surface.evaluate(uv - du)
-    sv = surface.evaluate(uv + dv) - surface.evaluate(uv - dv)
-    return np.cross(su, sv)
+def patch_area(patch: Patch) -> float:
+    """Area of a patch by tensor Gauss-Legendre quadrature (``_GAUSS`` nodes per direction)."""
+    _, ps, pt = _derivs(patch, "gauss")
+    return float(_GAUSS_W @ np.linalg.norm(np.cross(ps, pt), axis=-1) @ _GAUSS_W)
 
 
 def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | None,
@@ -106,52 +113,62 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
     surf = face.surface
     slack = tol.exact_rel * model.diagonal
     g = np.linspace(0.0, 1.0, _GRID)
-    gi = np.linspace(0.05, 0.95, _GRID)
-    dev = side_dev = area_out = 0.0
-    folded = collapsed = 0
+    gi = _GRIDS["interior"]
+    s = np.linspace(0.0, 1.0, _SIDE)
     problems: list[str] = list(fr.problems)
     u0, u1, v0, v1 = face.uv_bounds
     h = 1e-6 * np.array([max(u1 - u0, 1e-300), max(v1 - v0, 1e-300)])
-    for k, p in enumerate(fr.patches):
+    patches = fr.patches
+    for k, p in enumerate(patches):
         if max(p.degrees) > tol.max_degree:
             problems.append(f"face {fr.face} patch {k}: degree {p.degrees} above the maximum "
                             f"{tol.max_degree}")
-        # deviation from S(phi)
-        P = patch_points(p, g, g)
-        Q = surf.evaluate(cell_map(p, g, g).reshape(-1, 2)).reshape(P.shape)
-        d = float(np.max(np.linalg.norm(P - Q, axis=-1)))
+    # one surface evaluation per kind of sample for the whole face (building the B-spline
+    # evaluator costs more than evaluating it)
+    uv_grid = np.stack([cell_map(p, g, g) for p in patches]).reshape(-1, 2) if patches else np.zeros((0, 2))
+    uv_in = np.stack([cell_map(p, gi, gi) for p in patches]).reshape(-1, 2) if patches else np.zeros((0, 2))
+    sides = [(k, side, t) for k, p in enumerate(patches) for side, t in ((p.bottom, 0.0), (p.top, 1.0))
+             if side.pcurve is not None and not side.degenerate]
+    uv_side = (np.concatenate([side.pcurve.evaluate(side.w0 + s * (side.w1 - side.w0))
+                               for _, side, _ in sides]) if sides else np.zeros((0, 2)))
+    ev = surf.evaluate(np.concatenate([uv_grid, uv_side, uv_in + [h[0], 0], uv_in - [h[0], 0],
+                                       uv_in + [0, h[1]], uv_in - [0, h[1]]]))
+    n1, n2 = len(uv_grid), len(uv_side)
+    on_grid = ev[:n1].reshape(len(patches), _GRID, _GRID, 3)
+    on_side = ev[n1:n1 + n2].reshape(len(sides), _SIDE, 3)
+    fd = ev[n1 + n2:].reshape(4, len(patches), _GRID * _GRID, 3)
+    n_surf = np.cross(fd[0] - fd[1], fd[2] - fd[3])
+
+    dev = side_dev = area_out = 0.0
+    folded = collapsed = 0
+    for k, p in enumerate(patches):
+        d = float(np.max(np.linalg.norm(patch_points(p, g, g) - on_grid[k], axis=-1)))
         dev = max(dev, d)
         if d > p.bound + slack:
             problems.append(f"face {fr.face} patch {k}: deviation {d:.3g} exceeds its bound {p.bound:.3g}")
-        # trimming sides against S(pcurve(w))
-        s = np.linspace(0.0, 1.0, _SIDE)
-        for side, t in ((p.bottom, 0.0), (p.top, 1.0)):
-            if side.pcurve is None or side.degenerate:
-                continue
-            w = side.w0 + s * (side.w1 - side.w0)
-            ref = surf.evaluate(side.pcurve.evaluate(w))
-            got = patch_points(p, s, np.array([t]))[:, 0, :]
-            d = float(np.max(np.linalg.norm(got - ref, axis=-1)))
-            side_dev = max(side_dev, d)
-            if d > p.bound + fr.closure + slack:
-                problems.append(f"face {fr.face} patch {k}: side on edge {side.edge} is {d:.3g} from "
-                                f"S(pcurve), bound {p.bound + fr.closure:.3g}")
         # folds: patch normal against the surface normal at the same points (interior samples)
-        _, ps, pt = _derivs(p, gi, gi)
+        _, ps, pt = _derivs(p, "interior")
         n_patch = np.cross(ps, pt).reshape(-1, 3)
-        n_surf = _surface_normals(surf, cell_map(p, gi, gi).reshape(-1, 2), h)
-        scale = np.linalg.norm(n_patch, axis=1) * np.linalg.norm(n_surf, axis=1)
+        scale = np.linalg.norm(n_patch, axis=1) * np.linalg.norm(n_surf[k], axis=1)
         live = scale > 1e-12 * max(float(scale.max()), 1e-300)
-        if np.any(np.sum(n_patch * n_surf, axis=1)[live] <= 0.0):
+        if np.any(np.sum(n_patch * n_surf[k], axis=1)[live] <= 0.0):
             folded += 1
             problems.append(f"face {fr.face} patch {k}: folded (its normal turns against the surface's)")
         # rungs of zero length away from poles (triangular cells of the slab decomposition)
-        for a, b in ((0, 0), (-1, -1)):
+        for a in (0, -1):
             pa = p.bottom.H[a, :2] / p.bottom.H[a, 2]
-            pb = p.top.H[b, :2] / p.top.H[b, 2]
+            pb = p.top.H[a, :2] / p.top.H[a, 2]
             if np.allclose(pa, pb, rtol=0.0, atol=1e-12 * max(u1 - u0, v1 - v0)):
                 collapsed += 1
         area_out += patch_area(p)
+    # trimming sides against S(pcurve(w))
+    for (k, side, t), ref in zip(sides, on_side, strict=True):
+        p = patches[k]
+        d = float(np.max(np.linalg.norm(patch_points(p, s, np.array([t]))[:, 0, :] - ref, axis=-1)))
+        side_dev = max(side_dev, d)
+        if d > p.bound + fr.closure + slack:
+            problems.append(f"face {fr.face} patch {k}: side on edge {side.edge} is {d:.3g} from "
+                            f"S(pcurve), bound {p.bound + fr.closure:.3g}")
     if area_in is not None and area_in > 0:
         perimeter = 4.0 * np.sqrt(area_in)  # of a square of the same area: a scale, not a bound
         allowed = 1e-6 * area_in + 2.0 * perimeter * fr.bound + area_spread
