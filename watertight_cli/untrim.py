@@ -45,7 +45,7 @@ __all__ = ["Patch", "FaceResult", "UntrimResult", "untrim", "edge_plan", "Untrim
 
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
-_FLATTEN = 0.1  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
+_FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
 _ROOT_SAMPLES = 48
 
 
@@ -399,21 +399,22 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
     for p in pieces:
         p = _orient_u(p)
         a, b = p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2]
-        if b - a <= ueps:
+        # every end was clustered into a line: a piece runs from its first end's line to its last
+        # end's line, so one rule decides both the lines and which pieces lie on a line
+        i, j = _nearest(lines, a), _nearest(lines, b)
+        if i == j:
             if b - a > g.ueps:
                 fr.slivers += 1  # narrower than a sliver: its strip is left to the neighbours
             else:
                 fr.snapped += b - a > 0
             continue  # a u-iso piece: it lies on a slab line
-        inside = lines[(lines > a + ueps) & (lines < b - ueps)]
         rest = p
-        for c in inside:
-            t = _t_at_u(rest.H, c)
-            if 0.0 < t < 1.0:
-                left, rest = _split(rest, t)
-                fr.local_cuts += 1
-                _put(slabs, lines, left)
-        _put(slabs, lines, rest)
+        for k in range(i + 1, j):
+            t = _t_at_u(rest.H, float(lines[k]))
+            left, rest = _split(rest, t)
+            fr.local_cuts += 1
+            slabs[k - 1].append(left)
+        slabs[j - 1].append(rest)
     for j, sp in enumerate(slabs):
         if not sp:
             continue
@@ -443,10 +444,9 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
                 yield ua, ubb, s0, s1
 
 
-def _put(slabs, lines, p: _Piece) -> None:
-    um = 0.5 * (p.H[0, 0] / p.H[0, 2] + p.H[-1, 0] / p.H[-1, 2])
-    j = int(np.clip(np.searchsorted(lines, um) - 1, 0, len(slabs) - 1))
-    slabs[j].append(p)
+def _nearest(lines: np.ndarray, x: float) -> int:
+    k = int(np.clip(np.searchsorted(lines, x), 1, len(lines) - 1))
+    return k - 1 if x - lines[k - 1] <= lines[k] - x else k
 
 
 # ------------------------------------------------------------------------------------------ the maps
@@ -782,7 +782,7 @@ def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict |
                 pins = [f[axis] for f in (fa, fb) if f[axis] is not None]
                 if pins:
                     mid[axis] = sum(pins) / len(pins)
-            worst = max(worst, 0.5 * float(np.linalg.norm(a - b)))
+            worst = max(worst, float(np.linalg.norm(a - mid)), float(np.linalg.norm(b - mid)))
             _set_point(pa.H, ra, mid)
             _set_point(pb.H, rb, mid)
     return worst

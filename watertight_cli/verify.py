@@ -10,7 +10,8 @@ intermediate Bezier pieces that built the patches:
   input. This is the property stage 2 relies on.
 * **area**: the summed patch areas (Gauss-Legendre on the patches) against the trimmed face's area
   measured by the kernel (passed in, as OCCT is not imported here), allowing 1e-6 of the area,
-  the deviation bound times a perimeter scale, and the spread of the kernel's two integrators.
+  the area a patch boundary sweeps when it moves by its bound (boundary length x bound, summed
+  over the patches) and the spread of the kernel's two integrators.
 * **folds**: the patch normal against the surface normal at the mapped points; a patch that turns
   over has a negative product somewhere.
 """
@@ -107,6 +108,13 @@ def patch_area(patch: Patch) -> float:
     return float(_GAUSS_W @ np.linalg.norm(np.cross(ps, pt), axis=-1) @ _GAUSS_W)
 
 
+def _perimeter(p: Patch) -> float:
+    """Length bound of a patch's boundary: its four boundary control polygons."""
+    C = p.ctrl[..., :3] / p.ctrl[..., 3:4] if p.rational else p.ctrl
+    return float(sum(np.linalg.norm(np.diff(row, axis=0), axis=-1).sum()
+                     for row in (C[:, 0], C[:, -1], C[0, :], C[-1, :])))
+
+
 def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | None,
                 area_spread: float = 0.0) -> FaceCheck:
     face = model.faces[fr.face]
@@ -139,7 +147,7 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
     fd = ev[n1 + n2:].reshape(4, len(patches), _GRID * _GRID, 3)
     n_surf = np.cross(fd[0] - fd[1], fd[2] - fd[3])
 
-    dev = side_dev = area_out = 0.0
+    dev = side_dev = area_out = swept = 0.0
     folded = collapsed = 0
     for k, p in enumerate(patches):
         d = float(np.max(np.linalg.norm(patch_points(p, g, g) - on_grid[k], axis=-1)))
@@ -161,6 +169,8 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
             if np.allclose(pa, pb, rtol=0.0, atol=1e-12 * max(u1 - u0, v1 - v0)):
                 collapsed += 1
         area_out += patch_area(p)
+        # a boundary that moves by the bound sweeps at most perimeter x bound of area
+        swept += _perimeter(p) * (p.bound + fr.closure)
     # trimming sides against S(pcurve(w))
     for (k, side, t), ref in zip(sides, on_side, strict=True):
         p = patches[k]
@@ -170,8 +180,7 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
             problems.append(f"face {fr.face} patch {k}: side on edge {side.edge} is {d:.3g} from "
                             f"S(pcurve), bound {p.bound + fr.closure:.3g}")
     if area_in is not None and area_in > 0:
-        perimeter = 4.0 * np.sqrt(area_in)  # of a square of the same area: a scale, not a bound
-        allowed = 1e-6 * area_in + 2.0 * perimeter * fr.bound + area_spread
+        allowed = 1e-6 * area_in + swept + area_spread
         if abs(area_out - area_in) > allowed:
             problems.append(f"face {fr.face}: patch area {area_out:.9g} differs from the face area "
                             f"{area_in:.9g} by more than {allowed:.3g}")
