@@ -146,6 +146,7 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
     on_side = ev[n1:n1 + n2].reshape(len(sides), _SIDE, 3)
     fd = ev[n1 + n2:].reshape(4, len(patches), _GRID * _GRID, 3)
     n_surf = np.cross(fd[0] - fd[1], fd[2] - fd[3])
+    n_scale = float(np.linalg.norm(n_surf, axis=-1).max()) if patches else 0.0
 
     dev = side_dev = area_out = swept = 0.0
     folded = collapsed = 0
@@ -157,8 +158,12 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
         # folds: patch normal against the surface normal at the same points (interior samples)
         _, ps, pt = _derivs(p, "interior")
         n_patch = np.cross(ps, pt).reshape(-1, 3)
-        scale = np.linalg.norm(n_patch, axis=1) * np.linalg.norm(n_surf[k], axis=1)
-        live = scale > 1e-12 * max(float(scale.max()), 1e-300)
+        # only where both normals are meaningful: not at the surface's poles or creases (tiny
+        # against the face's largest normal) and not where the patch itself degenerates
+        C = p.ctrl[..., :3] / p.ctrl[..., 3:4] if p.rational else p.ctrl
+        extent = float(np.ptp(C.reshape(-1, 3), axis=0).max())
+        live = ((np.linalg.norm(n_surf[k], axis=1) > 1e-6 * n_scale)
+                & (np.linalg.norm(n_patch, axis=1) > 1e-8 * extent**2))
         if np.any(np.sum(n_patch * n_surf[k], axis=1)[live] <= 0.0):
             folded += 1
             problems.append(f"face {fr.face} patch {k}: folded (its normal turns against the surface's)")
