@@ -298,6 +298,7 @@ class _FaceGeometry:
         self.veps = max(1e-11 * max(v1 - v0, 1e-300), self.snap / sv if sv > 0 else 0.0)
         # slab lines closer than a sliver merge (see Tolerances.sliver_rel)
         self.ueps_lines = max(self.ueps, tol.sliver_rel * diagonal / su if su > 0 else 0.0)
+        self.sliver = tol.sliver_rel * diagonal
         self.breaks = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
 
 
@@ -439,9 +440,21 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
             bmin = float(min(bot.H[0, 1] / bot.H[0, 2], bot.H[-1, 1] / bot.H[-1, 2]))
             tmax = float(max(top.H[0, 1] / top.H[0, 2], top.H[-1, 1] / top.H[-1, 2]))
             knots = [float(c) for c in vb[1:-1] if bmin + veps < c < tmax - veps]
-            sides = [bside] + [_iso_side(ua, ubb, c) for c in knots] + [tside]
+            # the knot lines run between the cell's rungs (the straight segments joining the ends
+            # of bottom and top), which may stand a sliver off the slab lines
+            b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
+            t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
+            sides = [bside] + [_iso_side(_rung_u(b0, t0, c), _rung_u(b1, t1, c), c) for c in knots] + [tside]
             for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
                 yield ua, ubb, s0, s1
+
+
+def _rung_u(b: np.ndarray, t: np.ndarray, c: float) -> float:
+    """u where the rung from b to t (uv points) crosses v = c."""
+    dv = t[1] - b[1]
+    if dv == 0:
+        return float(b[0])
+    return float(b[0] + (t[0] - b[0]) * np.clip((c - b[1]) / dv, 0.0, 1.0))
 
 
 def _nearest(lines: np.ndarray, x: float) -> int:
@@ -531,6 +544,7 @@ class _FaceContext:
         self.rational = g.rational
         self.ub, self.vb, self.spans = g.ub, g.vb, g.spans
         self.m, self.n = g.m, g.n
+        self.g = g
         self.tol = tol
         self.max_degree = max_degree
 
@@ -571,6 +585,9 @@ class _FaceContext:
             return self._approximate(ua, ubb, bot, top, P, (U0, du, V0, dv), fr, depth)
         det = _phi_jacobian(U, V, W)
         if not np.all(det > 0):
+            if self._thin(ua, ubb, bot, top):
+                fr.slivers += 1  # thinner than a sliver all along (a tangential corner): dropped
+                return []
             if depth >= _MAX_FOLD_DEPTH:
                 fr.folds += 1
                 fr.problems.append(f"a folded cell near u = {um:.6g}, v = {vm:.6g} could not be split away")
@@ -584,6 +601,15 @@ class _FaceContext:
             ctrl = compose(Ph, U, V, W=W)
             rational = True
         return [Patch(self.face.index, ctrl, rational, bot, top)]
+
+    def _thin(self, ua: float, ubb: float, bot: Side, top: Side) -> bool:
+        """Bottom and top closer than a sliver (in 3D, through the surface's v-speed) at every u."""
+        for u in np.linspace(ua, ubb, 9):
+            vb = _eval(bot.H, _t_at_u(bot.H, float(u)))[0, 1]
+            vt = _eval(top.H, _t_at_u(top.H, float(u)))[0, 1]
+            if abs(vt - vb) * self.g.sv > self.g.sliver:
+                return False
+        return True
 
     def _follow(self, E: Side, bot: Side, top: Side, P, frame) -> Patch | None:
         """A cell between two v-iso lines where one side is an edge whose parameter is not affine in

@@ -9,9 +9,9 @@ intermediate Bezier pieces that built the patches:
   affinely over the piece's edge parameters, the pcurve evaluated as the B-spline it is in the
   input. This is the property stage 2 relies on.
 * **area**: the summed patch areas (Gauss-Legendre on the patches) against the trimmed face's area
-  measured by the kernel (passed in, as OCCT is not imported here), allowing 1e-6 of the area,
+  measured by the kernel (passed in, as OCCT is not imported here), allowing 1e-5 of the area,
   the area a patch boundary sweeps when it moves by its bound (boundary length x bound, summed
-  over the patches) and the spread of the kernel's two integrators.
+  over the patches), measured from the interval between the kernel's two integrators.
 * **folds**: the patch normal against the surface normal at the mapped points; a patch that turns
   over has a negative product somewhere.
 """
@@ -33,6 +33,10 @@ __all__ = ["FaceCheck", "Verification", "verify_untrim", "patch_area"]
 _GRID = 9  # samples per direction for the deviation and fold checks
 _SIDE = 33  # samples along each trimming side
 _GAUSS = 24  # Gauss-Legendre nodes per direction for areas
+#: relative slack of the area check: OCCT's integrators are off by a few 1e-6 of the area even when
+#: they agree with each other (measured on a face with a pole in gmsh__917_fusee.stp, where our
+#: converged quadrature is 2.6e-6 from the nearer one); a missing or doubled cell is far larger
+_AREA_REL = 1e-5
 _GAUSS_X = 0.5 * (np.polynomial.legendre.leggauss(_GAUSS)[0] + 1)
 _GAUSS_W = 0.5 * np.polynomial.legendre.leggauss(_GAUSS)[1]
 _GRIDS = {
@@ -115,8 +119,8 @@ def _perimeter(p: Patch) -> float:
                      for row in (C[:, 0], C[:, -1], C[0, :], C[-1, :])))
 
 
-def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | None,
-                area_spread: float = 0.0) -> FaceCheck:
+def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
+                area_ref: tuple[float, float] | None = None) -> FaceCheck:
     face = model.faces[fr.face]
     surf = face.surface
     slack = tol.exact_rel * model.diagonal
@@ -184,11 +188,15 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
         if d > p.bound + fr.closure + slack:
             problems.append(f"face {fr.face} patch {k}: side on edge {side.edge} is {d:.3g} from "
                             f"S(pcurve), bound {p.bound + fr.closure:.3g}")
-    if area_in is not None and area_in > 0:
-        allowed = 1e-6 * area_in + swept + area_spread
-        if abs(area_out - area_in) > allowed:
-            problems.append(f"face {fr.face}: patch area {area_out:.9g} differs from the face area "
-                            f"{area_in:.9g} by more than {allowed:.3g}")
+    area_in = None
+    if area_ref is not None:
+        area_in = area_ref[0]
+        lo, hi = min(area_ref), max(area_ref)
+        allowed = _AREA_REL * hi + swept
+        off = max(lo - area_out, area_out - hi, 0.0)  # distance from the kernel's interval
+        if off > allowed:
+            problems.append(f"face {fr.face}: patch area {area_out:.9g} is {off:.3g} outside the kernel's "
+                            f"[{lo:.9g}, {hi:.9g}], more than {allowed:.3g}")
     if not fr.patches and not fr.problems:
         problems.append(f"face {fr.face}: no patches")
     return FaceCheck(fr.face, len(fr.patches), fr.bound, dev, side_dev, area_in, area_out, folded,
@@ -197,12 +205,12 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances, area_in: float | 
 
 def verify_untrim(model: Model, result: UntrimResult, tol: Tolerances,
                   areas: np.ndarray | None = None, progress=None) -> Verification:
-    """Check every face of a stage-1 result (see module doc). ``areas``: (faces, 2) kernel face areas
-    and their uncertainty (see ``occ.build.face_area``), or None to skip the area check."""
+    """Check every face of a stage-1 result (see module doc). ``areas``: (faces, 2) the kernel's
+    two face areas (see ``occ.build.face_area``), or None to skip the area check."""
     checks = []
     for fr in result.faces:
-        ref = (None, 0.0) if areas is None else (float(areas[fr.face, 0]), float(areas[fr.face, 1]))
-        checks.append(_check_face(fr, model, tol, *ref))
+        ref = None if areas is None else (float(areas[fr.face, 0]), float(areas[fr.face, 1]))
+        checks.append(_check_face(fr, model, tol, ref))
         if progress is not None:
             progress(1)
     return Verification(checks)

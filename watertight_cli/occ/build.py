@@ -121,22 +121,22 @@ def open_shell(faces) -> TopoDS_Shell:
 
 
 def face_area(face) -> tuple[float, float]:
-    """The kernel's area of a (trimmed) face and how far to trust it.
+    """The kernel's area of a (trimmed) face by its two integrators: (adaptive, fixed Gauss rule).
 
-    OCCT has two integrators: a fixed Gauss rule and an adaptive one. They disagree by up to 1e-5
-    of the area on some faces (surfaces of linear extrusion), so the spread between them is
-    returned as the reference's own uncertainty, with the adaptive value as the area.
+    They disagree by up to 2e-4 of the area on some faces (surfaces of linear extrusion, faces
+    with a pole), and neither is always the better one, so both are returned and the verify step
+    treats the interval between them as the reference.
     """
     props = GProp_GProps()
     BRepGProp.SurfaceProperties_s(face, props, 1e-10)
     adaptive = float(props.Mass())
     props = GProp_GProps()
     BRepGProp.SurfaceProperties_s(face, props)
-    return adaptive, abs(float(props.Mass()) - adaptive)
+    return adaptive, float(props.Mass())
 
 
 def input_face_areas(shape) -> np.ndarray:
-    """(faces, 2): area and its uncertainty for every face of a prepared shape, in the model's
-    face numbering."""
+    """(faces, 2): the kernel's two areas of every face of a prepared shape (see ``face_area``), in
+    the model's face numbering."""
     fmap = indexed(shape, TopAbs_FACE)
     return np.array([face_area(TopoDS.Face_s(fmap.FindKey(i))) for i in range(1, fmap.Extent() + 1)])
