@@ -39,3 +39,21 @@ def test_report_agrees_with_checker(name, tol):
     kernel = {g.edge: g.gap for g in ins.gaps}
     worst = max(abs(g.gap - kernel[g.edge]) for g in ins.array_gaps)
     assert worst <= 1e-9 * diag, worst
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", corpus_files())
+def test_corpus_file_untrims_and_verifies(name):
+    """Stage 1 on every real file: the own verify step passes (deviation within the bounds, trimming
+    sides on S(pcurve), areas, no folds). Slow: minutes per file on two cores."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.occ.build import input_face_areas
+    from watertight_cli.tolerances import Tolerances
+    from watertight_cli.untrim import untrim
+    from watertight_cli.verify import verify_untrim
+
+    tol = Tolerances()
+    ins = inspect(str(corpus_path(name)), tol)
+    res = untrim(ins.model, tol)
+    check = verify_untrim(ins.model, res, tol, input_face_areas(ins.shape))
+    assert check.ok, check.problems[:3]

@@ -229,3 +229,55 @@ def test_cells_cover_a_face_with_a_hole():
         poly = np.concatenate(pts)
         ref += 0.5 * (poly[:, 0] @ np.roll(poly[:, 1], -1) - poly[:, 1] @ np.roll(poly[:, 0], -1))
     assert area == pytest.approx(abs(ref), rel=1e-4)
+
+
+def test_flatten_makes_a_wiggly_vertical_coedge_exact_and_pins_the_corners():
+    """A near-vertical pcurve that wiggles by 1e-7 (as exporters write them) becomes the exact line
+    u = const, and the loop closing keeps that u at both of its corners."""
+    from watertight_cli.untrim import _close_loops, _Coedge, _flatten, _Piece
+
+    class G:  # the two speed bounds _flatten reads
+        su, sv = 1.0, 1.0
+
+    def chain_entry(points):
+        H = np.concatenate([np.asarray(points, float), np.ones((len(points), 1))], axis=1)
+        ce = _Coedge(0, False, None, 0.0, 1.0, np.array([0.0, 1.0]), np.zeros((1, 2, 3)))
+        return ce, [_Piece(H, 0, 0.0, 1.0, False)]
+
+    wiggly = chain_entry([(0.5, 0.0), (0.5 + 1e-7, 0.3), (0.5 - 1e-7, 0.7), (0.5 + 2e-8, 1.0)])
+    top = chain_entry([(0.50000003, 1.0), (0.0, 1.0)])
+    left = chain_entry([(0.0, 1.0), (0.0, 0.0)])
+    bottom = chain_entry([(0.0, 0.0), (0.5, 0.0)])
+    chains = [[bottom, wiggly, top, left]]
+    fixed, flat = _flatten(chains, G, budget=1e-6)
+    assert flat == pytest.approx(1e-7)
+    u = wiggly[1][0].H[:, 0]
+    assert np.all(u == u[0])  # exactly vertical
+    _close_loops(chains, fixed)
+    assert top[1][0].H[0, 0] == u[0] and bottom[1][0].H[-1, 0] == u[0]  # corners on the line
+    assert np.array_equal(top[1][0].H[0, :2], wiggly[1][0].H[-1, :2])  # and the loop is closed
+
+
+def test_flatten_leaves_curved_coedges_alone():
+    from watertight_cli.untrim import _Coedge, _flatten, _Piece
+
+    class G:
+        su, sv = 1.0, 1.0
+
+    H = np.array([[0.0, 0.0, 1.0], [0.3, 0.5, 1.0], [0.0, 1.0, 1.0]])
+    ce = _Coedge(0, False, None, 0.0, 1.0, np.array([0.0, 1.0]), np.zeros((1, 2, 3)))
+    fixed, flat = _flatten([[(ce, [_Piece(H.copy(), 0, 0.0, 1.0, False)])]], G, budget=1e-6)
+    assert fixed == {} and flat == 0.0
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(0, 1), min_size=2, max_size=30), st.floats(1e-9, 1e-2))
+def test_slab_lines_and_nearest_agree(values, eps):
+    """Every clustered value maps to a line within the cluster's reach, and lines are sorted."""
+    from watertight_cli.untrim import _cluster, _nearest
+
+    lines = _cluster(list(values), set(), eps)
+    assert np.all(np.diff(lines) > eps)
+    for x in values:
+        k = _nearest(lines, x)
+        assert abs(lines[k] - x) <= min(abs(lines - x)) + 1e-15
