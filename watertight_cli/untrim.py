@@ -490,9 +490,14 @@ def _map_grids(B: np.ndarray, T: np.ndarray):
     return (np.stack([XB[:, 0], XT[:, 0]], 1), np.stack([XB[:, 1], XT[:, 1]], 1), np.stack([W, W], 1))
 
 
-def _phi_jacobian(U, V, W, n: int = 9) -> np.ndarray:
-    """det d(u, v)/d(s, t) of the map on an interior n x n grid."""
-    s = np.linspace(0, 1, n + 2)[1:-1]
+_JAC_GRID = np.concatenate([[0.005, 0.02, 0.05], np.linspace(0.1, 0.9, 9), [0.95, 0.98, 0.995]])
+
+
+def _phi_jacobian(U, V, W) -> np.ndarray:
+    """det d(u, v)/d(s, t) of the map on an interior grid, denser towards the sides (where a side
+    that turns near its end folds a thin cell)."""
+    s = _JAC_GRID
+    n = len(s)
     a = U.shape[0] - 1
     Bs, Bt = basis(a, s), basis(1, s)
     dBs = a * (basis(a - 1, s) @ (np.eye(a + 1)[1:] - np.eye(a + 1)[:-1])) if a > 0 else np.zeros((n, 1))
@@ -589,6 +594,9 @@ class _FaceContext:
                 fr.slivers += 1  # thinner than a sliver all along (a tangential corner): dropped
                 return []
             if depth >= _MAX_FOLD_DEPTH:
+                out = self._unfold(bot, top, P, (U0, du, V0, dv))
+                if out is not None:
+                    return [out]
                 fr.folds += 1
                 fr.problems.append(f"a folded cell near u = {um:.6g}, v = {vm:.6g} could not be split away")
             else:
@@ -601,6 +609,31 @@ class _FaceContext:
             ctrl = compose(Ph, U, V, W=W)
             rational = True
         return [Patch(self.face.index, ctrl, rational, bot, top)]
+
+    def _unfold(self, bot: Side, top: Side, P, frame) -> Patch | None:
+        """A cell that stays folded after the deepest split (its sides turn against each other near
+        a rung, typical of a wiggly near-iso pcurve): the lowest-degree replacement of the sides
+        that unfolds it within the tolerance, as an approximated patch. None when there is none."""
+        U0, du, V0, dv = frame
+        B = _localize(bot.H, U0, du, V0, dv)
+        T = _localize(top.H, U0, du, V0, dv)
+        lu, lv = _lipschitz(P, self.rational)
+        for q in range(1, 4):
+            sides, bound, est = [], 0.0, False
+            for S in (B, T):
+                Sr, (eu, ev), es = _reduce_side(S, q)
+                sides.append(Sr)
+                bound = max(bound, lu * eu + lv * ev)
+                est |= es
+            U, V, W = _map_grids(*sides)
+            if bound > self.tol or (self.m + self.n) * q > self.max_degree:
+                return None
+            if np.all(_phi_jacobian(U, V, W) > 0):
+                if W is None:
+                    return Patch(self.face.index, compose(P, U, V), self.rational, bot, top, bound, est, True)
+                Ph = P if self.rational else np.concatenate([P, np.ones(P.shape[:2] + (1,))], axis=-1)
+                return Patch(self.face.index, compose(Ph, U, V, W=W), True, bot, top, bound, est, True)
+        return None
 
     def _thin(self, ua: float, ubb: float, bot: Side, top: Side) -> bool:
         """Bottom and top closer than a sliver (in 3D, through the surface's v-speed) at every u."""
@@ -829,7 +862,25 @@ def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray], g: _Face
         chains[ce.loop].append((ce, ps))
     fixed, flat = _flatten(chains, g, budget)
     move = _close_loops(chains, fixed)
-    return [p for chain in chains for _, ps in chain for p in ps], move, flat
+    pieces = [q for chain in chains for _, ps in chain for p in ps for q in _monotone(p, (g.ueps, g.veps))]
+    return pieces, move, flat
+
+
+def _monotone(p: _Piece, eps) -> list[_Piece]:
+    """The piece cut at the u- and v-extrema inside it. The edge plan cut every pcurve at its
+    extrema already; closing a loop moves an end control point, which can turn a short piece back
+    near its end, so the closed pieces are checked again (face-local cuts)."""
+    uv = p.H[:, :2] / p.H[:, 2:3]
+    ts = sorted({r for a in (0, 1) if np.ptp(uv[:, a]) > eps[a] for r in _roots(_extremum_fn(p.H, a))})
+    out, rest, t0 = [], p, 0.0
+    for t in ts:
+        tl = (t - t0) / (1.0 - t0)
+        if not 1e-9 < tl < 1.0 - 1e-9:
+            continue
+        left, rest = _split(rest, tl)
+        out.append(left)
+        t0 = t
+    return out + [rest]
 
 
 def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
