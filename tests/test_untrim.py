@@ -281,3 +281,17 @@ def test_slab_lines_and_nearest_agree(values, eps):
     for x in values:
         k = _nearest(lines, x)
         assert abs(lines[k] - x) <= min(abs(lines - x)) + 1e-15
+
+
+def test_pieces_are_recut_where_loop_closing_turns_them_back():
+    """Closing a 5e-5 uv gap moved the end of a 1e-5-wide piece back past its start in u (seen in
+    gmsh__wing_fuselage.step): the piece is cut again so that every piece stays u-monotone."""
+    from watertight_cli.untrim import _monotone, _Piece
+
+    H = np.array([[0.0, 0.0, 1.0], [1.0e-5, 0.1, 1.0], [1.2e-5, 0.2, 1.0], [-2.0e-5, 0.3, 1.0]])
+    parts = _monotone(_Piece(H, 0, 0.0, 1.0, False), (1e-12, 1e-12))
+    assert len(parts) == 2
+    for p in parts:
+        u = p.H[:, 0]
+        assert np.all(np.diff(u) >= -1e-15) or np.all(np.diff(u) <= 1e-15)
+    assert parts[0].w1 == parts[1].w0 and parts[0].w0 == 0.0 and parts[1].w1 == 1.0
