@@ -218,3 +218,13 @@ def test_convert_help_explains_stages():
     assert result.exit_code == 0
     for word in ("--stage", "untrim", "--max-degree", "--tolerance", "atomically"):
         assert word in result.output
+
+
+def test_json_reports_take_numpy_numbers():
+    """A report holding numpy scalars (np.bool_, np.int64 sums) still prints as JSON: no traceback."""
+    import numpy as np
+
+    from watertight_cli.cli import _jsonable
+
+    doc = {"a": np.bool_(True), "n": np.int64(3), "x": np.float64(0.5), "v": np.arange(2)}
+    assert json.loads(json.dumps(doc, default=_jsonable)) == {"a": True, "n": 3, "x": 0.5, "v": [0, 1]}

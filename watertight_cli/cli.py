@@ -30,6 +30,13 @@ Exit codes:
 """
 
 
+def _jsonable(obj):
+    """numpy scalars and arrays in a report become plain JSON numbers and lists."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
+
+
 def _err(msg: str) -> None:
     click.echo(f"watertight: error: {msg}", err=True)
 
@@ -141,7 +148,7 @@ def report(models, as_json, max_gap, samples, quiet):
         payload = [o.report or {"schema_version": SCHEMA_VERSION, "file": o.path, "error": o.error}
                    for o in run.outcomes]
         doc = payload[0] if len(payload) == 1 else {"schema_version": SCHEMA_VERSION, "files": payload}
-        sys.stdout.write(json.dumps(doc, indent=1) + "\n")
+        sys.stdout.write(json.dumps(doc, indent=1, default=_jsonable) + "\n")
     sys.exit(run.exit_code)
 
 
@@ -215,7 +222,7 @@ def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, qu
         click.echo(format_untrim_table(rep), err=True)
     if as_json:
         doc = rep or {"schema_version": SCHEMA_VERSION, "file": source, "error": error}
-        sys.stdout.write(json.dumps(doc, indent=1) + "\n")
+        sys.stdout.write(json.dumps(doc, indent=1, default=_jsonable) + "\n")
     sys.exit(run.exit_code)
 
 

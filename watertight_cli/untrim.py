@@ -290,7 +290,7 @@ class _FaceGeometry:
             for j in range(len(dv)):
                 lu, lv = _lipschitz(self.spans[i, j], self.rational)
                 su, sv = max(su, lu / du[i]), max(sv, lv / dv[j])
-        self.su, self.sv = su, sv  # bounds of |dS/du| and |dS/dv|
+        self.su, self.sv = float(su), float(sv)  # bounds of |dS/du| and |dS/dv|
         self.speed = su + sv  # bound of |dS/du| + |dS/dv| over the surface
         self.snap = 0.1 * tol.exact_rel * diagonal
         u0, u1, v0, v1 = face.uv_bounds
@@ -890,7 +890,7 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     ctx = _FaceContext(face, g, tol.approx_rel * model.diagonal, tol.max_degree)
     pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal)
     fr.closure = move * g.speed + flat
-    fr.approximated = flat > g.snap
+    fr.approximated = bool(flat > g.snap)
     for ua, ubb, bot, top in _cells(face, pieces, g, fr):
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
     if fr.snapped:
