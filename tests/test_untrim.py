@@ -295,3 +295,24 @@ def test_pieces_are_recut_where_loop_closing_turns_them_back():
         u = p.H[:, 0]
         assert np.all(np.diff(u) >= -1e-15) or np.all(np.diff(u) <= 1e-15)
     assert parts[0].w1 == parts[1].w0 and parts[0].w0 == 0.0 and parts[1].w1 == 1.0
+
+
+def test_flatten_runs_straightens_a_near_vertical_stretch_of_a_long_pcurve():
+    """A long pcurve that runs along u = 1 for a while with 1e-7 wiggles (gmsh__wing_fuselage.step):
+    that stretch becomes exactly vertical, the rest stays, and the pieces still join."""
+    from watertight_cli.untrim import _flatten_runs, _Piece
+
+    def piece(pts):
+        return _Piece(np.concatenate([np.asarray(pts, float), np.ones((len(pts), 1))], 1), 0, 0.0, 1.0, False)
+
+    ps = [piece([(0.5, 0.0), (0.8, 0.1), (1.0, 0.2)]),
+          piece([(1.0, 0.2), (1.0 + 1e-7, 0.3), (1.0 - 1e-7, 0.4)]),
+          piece([(1.0 - 1e-7, 0.4), (1.0 + 5e-8, 0.5), (1.0, 0.6)]),
+          piece([(1.0, 0.6), (0.8, 0.7), (0.5, 0.8)])]
+    moved = _flatten_runs(ps, 0, 1e-6)
+    assert 0 < moved <= 1e-6
+    for p in ps[1:3]:
+        assert np.ptp(p.H[:, 0]) == 0.0
+    for a, b in zip(ps[:-1], ps[1:], strict=True):
+        assert np.array_equal(a.H[-1], b.H[0])
+    assert ps[0].H[0, 0] == 0.5 and ps[-1].H[-1, 0] == 0.5

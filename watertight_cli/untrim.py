@@ -814,7 +814,41 @@ def _flatten(chains, g: _FaceGeometry, budget: float) -> tuple[dict[int, tuple],
                 vals = [None, None]  # a point-like coedge: leave it to the loop closing
             if vals != [None, None]:
                 fixed[id(ce)] = tuple(vals)
+            if vals[0] is None and g.su > 0:
+                # in u only: slabs need near-vertical stretches to be vertical; in v a moved end
+                # could cross a knot line that the edge plan cut at before
+                worst = max(worst, g.su * _flatten_runs(ps, 0, budget / g.su))
     return fixed, worst
+
+
+def _flatten_runs(ps: list[_Piece], axis: int, half: float) -> float:
+    """Within one coedge, flatten every run of two or more consecutive pieces whose ``axis``
+    coordinate stays in a band of half-width ``half`` (a stretch of a long pcurve that runs along
+    an iso-line and wiggles around it); the neighbours' adjoining end points move onto the line.
+    Returns the largest move in uv (a band's half-width), 0.0 when nothing moved."""
+    worst_band = 0.0
+    i, n = 0, len(ps)
+    while i < n:
+        lo = hi = None
+        j = i
+        while j < n:
+            c = ps[j].H[:, axis] / ps[j].H[:, 2]
+            nlo = c.min() if lo is None else min(lo, c.min())
+            nhi = c.max() if hi is None else max(hi, c.max())
+            if 0.5 * (nhi - nlo) > half:
+                break
+            lo, hi, j = nlo, nhi, j + 1
+        if j - i >= 2 and hi > lo:
+            mid = 0.5 * (lo + hi)
+            for p in ps[i:j]:
+                p.H[:, axis] = mid * p.H[:, 2]
+            if i > 0:
+                ps[i - 1].H[-1, axis] = mid * ps[i - 1].H[-1, 2]
+            if j < n:
+                ps[j].H[0, axis] = mid * ps[j].H[0, 2]
+            worst_band = max(worst_band, 0.5 * (hi - lo))
+        i = max(j, i + 1)
+    return worst_band
 
 
 def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict | None = None) -> float:
