@@ -729,7 +729,6 @@ class _FaceContext:
             if e <= 0.5 * budget:
                 best, mr = (R, mt, n, e), mt
                 break
-        base, _, _, e0 = best
         for nt in range(1, n):
             R, e = reduce_surface(Q, mr, nt, fix_boundary=False)
             if e <= budget:
