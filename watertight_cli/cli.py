@@ -197,6 +197,10 @@ def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, qu
     its input face (sampled deviation within the bound, trimming sides on the input's
     surface(pcurve), summed patch area against the face area, no folds) before anything is
     written; the file is written atomically, so a failed run leaves no partial TARGET.
+
+    The report gives each face's guaranteed deviation bound: the approximation where the degree
+    budget forced one, plus the repairs of the input (closing uv gaps between consecutive
+    pcurves, straightening pcurves that wiggle around an iso-line within half the tolerance).
     """
     from .convert import convert_file, format_untrim_table
     from .report import SCHEMA_VERSION
