@@ -21,6 +21,13 @@ The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
    surface span is cut to the cell's box and its degree reduced, the pieces' degree is reduced with
    their ends held, and if the certified bound exceeds the tolerance the cell is halved and tried again.
 
+Real files need repairs before step 2, each bounded and added to the face's bound: loops whose
+consecutive pcurves leave uv gaps are closed (``_close_loops``); pcurves, or stretches of them, that
+wiggle around an iso-line within half the tolerance become exact iso-lines (``_flatten``); pieces that
+closing turned back are cut again at their extrema (``_monotone``). Slab lines closer than a sliver
+(``Tolerances.sliver_rel``) merge, and a folded cell that halving cannot mend is given lower-degree
+sides within the tolerance (``_unfold``) or, when thinner than a sliver, dropped.
+
 Every patch records the exact cell map (its two sides, in the face's global uv) so that the own verify
 step can compare the patch with S(phi) evaluated independently.
 """
