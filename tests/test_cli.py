@@ -228,3 +228,15 @@ def test_json_reports_take_numpy_numbers():
 
     doc = {"a": np.bool_(True), "n": np.int64(3), "x": np.float64(0.5), "v": np.arange(2)}
     assert json.loads(json.dumps(doc, default=_jsonable)) == {"a": True, "n": 3, "x": 0.5, "v": [0, 1]}
+
+
+def test_written_file_gets_the_usual_permissions(tmp_path):
+    """The atomic write goes through a 0600 temporary file; the result follows the umask."""
+    import os
+
+    out = tmp_path / "s.step"
+    result = run("convert", "--stage", "untrim", "-q", str(fixture_path("sphere.step")), str(out))
+    assert result.exit_code == 0
+    mask = os.umask(0)
+    os.umask(mask)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~mask

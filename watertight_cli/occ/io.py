@@ -180,11 +180,18 @@ def write_shape(shape: TopoDS_Shape, path: str | Path, overwrite: bool = True) -
         if not ok or os.path.getsize(tmp) == 0:
             raise OutputError(path, f"the kernel failed to write {fmt.upper()}")
         _normalise_header(tmp, fmt, path.name)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual permissions
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _normalise_header(tmp: str, fmt: str, name: str) -> None:
