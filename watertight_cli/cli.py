@@ -163,7 +163,7 @@ def _progress_factory(enabled: bool, path: str):
     def make(stage: str, total: int):
         for b in bars:
             b.close()
-        bar = tqdm(total=total, desc=f"{os.path.basename(path)}: {stage}", unit="face", leave=False,
+        bar = tqdm(total=total, desc=f"{os.path.basename(path)}: {stage}", leave=False,
                    file=sys.stderr, disable=None)
         bars.append(bar)
         return bar.update

@@ -29,7 +29,8 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untri
                  progress=None, overwrite: bool = True) -> dict:
     """Convert one file; returns its report. ``dst`` None: convert and verify, write nothing.
 
-    ``progress(stage_name, total)`` returns a callable advanced by one per face, or None.
+    ``progress(stage_name, total)`` returns a callable advanced by one per item (faces for untrim
+    and verify, patches for build), or None.
     Raises WatertightError (one line, naming the file) on any failure, before anything is written.
     """
     from .inspect import inspect
@@ -68,7 +69,12 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untri
                           + (f" (and {more} more)" if more else ""))
     if dst is not None:
         t = time.perf_counter()
-        faces = [patch_face(p.ctrl, p.rational, model.faces[p.face].reversed) for p in result.patches]
+        tick = progress("build", len(result.patches)) if progress else None
+        faces = []
+        for p in result.patches:
+            faces.append(patch_face(p.ctrl, p.rational, model.faces[p.face].reversed))
+            if tick is not None:
+                tick(1)
         write_shape(open_shell(faces), dst, overwrite=overwrite)
         times["write"] = time.perf_counter() - t
     report["timings"] = times
