@@ -293,10 +293,12 @@ class _FaceGeometry:
                                                          s.homogeneous())
         du, dv = np.diff(self.ub), np.diff(self.vb)
         su = sv = 0.0
+        self.span_speed = np.zeros((len(du), len(dv), 2))  # |dS/du| and |dS/dv| bounds per span
         for i in range(len(du)):
             for j in range(len(dv)):
                 lu, lv = _lipschitz(self.spans[i, j], self.rational)
                 su, sv = max(su, lu / du[i]), max(sv, lv / dv[j])
+                self.span_speed[i, j] = lu / du[i], lv / dv[j]
         self.su, self.sv = float(su), float(sv)  # bounds of |dS/du| and |dS/dv|
         self.speed = su + sv  # bound of |dS/du| + |dS/dv| over the surface
         self.snap = 0.1 * tol.exact_rel * diagonal
@@ -307,6 +309,16 @@ class _FaceGeometry:
         self.ueps_lines = max(self.ueps, tol.sliver_rel * diagonal / su if su > 0 else 0.0)
         self.sliver = tol.sliver_rel * diagonal
         self.breaks = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
+
+    def speed_over(self, points: np.ndarray) -> np.ndarray:
+        """Bounds of (|dS/du|, |dS/dv|) over the spans that the bounding box of uv ``points`` meets
+        (end spans extend past the domain, as the B-spline does)."""
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        i0, i1 = (int(np.clip(np.searchsorted(self.ub, x, side="right") - 1, 0, len(self.ub) - 2))
+                  for x in (lo[0], hi[0]))
+        j0, j1 = (int(np.clip(np.searchsorted(self.vb, x, side="right") - 1, 0, len(self.vb) - 2))
+                  for x in (lo[1], hi[1]))
+        return self.span_speed[i0:i1 + 1, j0:j1 + 1].reshape(-1, 2).max(axis=0)
 
 
 def edge_plan(model: Model, geoms: list[_FaceGeometry]) -> dict[int, np.ndarray]:
@@ -857,11 +869,14 @@ def _flatten_runs(ps: list[_Piece], axis: int, half: float) -> float:
     return worst_band
 
 
-def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict | None = None) -> float:
+def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict | None = None,
+                 g: _FaceGeometry | None = None) -> float:
     """Make every loop exactly closed in uv: where one coedge ends and the next begins (in the loop's
     travel order), both end control points move to the midpoint, except in a coordinate that
     ``_flatten`` fixed on one of them, which wins. Real files leave uv gaps up to the vertex
-    tolerance there. Returns the largest move (uv units)."""
+    tolerance there. Returns the largest move: in uv units without ``g``; with it, the 3D bound
+    of what the move does to the piece (|move| x the speed of the spans the piece's control
+    polygon, before and after, meets: moving one control point moves the curve by at most that)."""
     fixed = fixed or {}
     worst = 0.0
     for chain in chains:
@@ -881,17 +896,24 @@ def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict |
                 pins = [f[axis] for f in (fa, fb) if f[axis] is not None]
                 if pins:
                     mid[axis] = sum(pins) / len(pins)
-            worst = max(worst, float(np.linalg.norm(a - mid)), float(np.linalg.norm(b - mid)))
+            before = [p.H[:, :2] / p.H[:, 2:3] for p in (pa, pb)]
             _set_point(pa.H, ra, mid)
             _set_point(pb.H, rb, mid)
+            for p, old, end in ((pa, before[0], a), (pb, before[1], b)):
+                d = np.abs(end - mid)
+                if g is None:
+                    worst = max(worst, float(np.linalg.norm(d)))
+                elif d.any():  # per axis: a move in v costs only the v-speed
+                    box = np.concatenate([old, p.H[:, :2] / p.H[:, 2:3]])
+                    worst = max(worst, float(d @ g.speed_over(box)))
     return worst
 
 
 def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray], g: _FaceGeometry,
                  budget: float = 0.0) -> tuple[list[_Piece], float, float]:
     """The face's pcurve pieces, cut at the edge plan, near-iso coedges flattened (``_flatten``
-    within ``budget``, model units) and the loops closed exactly; with the largest uv move made to
-    close them and the largest 3D move made to flatten."""
+    within ``budget``, model units) and the loops closed exactly; with 3D bounds of the moves made
+    to close them (see ``_close_loops``) and to flatten."""
     chains: list[list[tuple[_Coedge, list[_Piece]]]] = [[] for _ in face.loops]
     for ce in _coedges(face, model):
         params = plan.get(ce.edge) if not ce.degenerate else np.array(_needs(ce, g.breaks, (g.ueps, g.veps)))
@@ -901,7 +923,7 @@ def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray], g: _Face
               for w0, w1, H in _span_pieces(ce, params)]
         chains[ce.loop].append((ce, ps))
     fixed, flat = _flatten(chains, g, budget)
-    move = _close_loops(chains, fixed)
+    move = _close_loops(chains, fixed, g)
     pieces = [q for chain in chains for _, ps in chain for p in ps for q in _monotone(p, (g.ueps, g.veps))]
     return pieces, move, flat
 
@@ -929,7 +951,7 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     g = g or _FaceGeometry(face, model.diagonal, tol)
     ctx = _FaceContext(face, g, tol.approx_rel * model.diagonal, tol.max_degree)
     pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal)
-    fr.closure = move * g.speed + flat
+    fr.closure = move + flat
     fr.approximated = bool(flat > g.snap)
     for ua, ubb, bot, top in _cells(face, pieces, g, fr):
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
