@@ -620,14 +620,16 @@ class _FaceContext:
                 fr.problems.append(f"a folded cell near u = {um:.6g}, v = {vm:.6g} could not be split away")
             else:
                 return self._halve(ua, ubb, bot, top, fr, depth)
-        if W is None:
-            ctrl = compose(P, U, V)
-            rational = self.rational
-        else:
-            Ph = P if self.rational else np.concatenate([P, np.ones(P.shape[:2] + (1,))], axis=-1)
-            ctrl = compose(Ph, U, V, W=W)
-            rational = True
+        ctrl, rational = self._compose(P, U, V, W)
         return [Patch(self.face.index, ctrl, rational, bot, top)]
+
+    def _compose(self, P, U, V, W) -> tuple[np.ndarray, bool]:
+        """S o phi for the span net P: polynomial map (W None) or rational map (U/W, V/W), which makes
+        even a polynomial surface's patch rational."""
+        if W is None:
+            return compose(P, U, V), self.rational
+        Ph = P if self.rational else np.concatenate([P, np.ones(P.shape[:2] + (1,))], axis=-1)
+        return compose(Ph, U, V, W=W), True
 
     def _unfold(self, bot: Side, top: Side, P, frame) -> Patch | None:
         """A cell that stays folded after the deepest split (its sides turn against each other near
@@ -648,10 +650,8 @@ class _FaceContext:
             if bound > self.tol or (self.m + self.n) * q > self.max_degree:
                 return None
             if np.all(_phi_jacobian(U, V, W) > 0):
-                if W is None:
-                    return Patch(self.face.index, compose(P, U, V), self.rational, bot, top, bound, est, True)
-                Ph = P if self.rational else np.concatenate([P, np.ones(P.shape[:2] + (1,))], axis=-1)
-                return Patch(self.face.index, compose(Ph, U, V, W=W), True, bot, top, bound, est, True)
+                ctrl, rational = self._compose(P, U, V, W)
+                return Patch(self.face.index, ctrl, rational, bot, top, bound, est, True)
         return None
 
     def _thin(self, ua: float, ubb: float, bot: Side, top: Side) -> bool:
@@ -726,13 +726,7 @@ class _FaceContext:
         if not np.all(det > 0):
             fr.folds += 1
             fr.problems.append(f"a folded approximated cell near u = {0.5 * (ua + ubb):.6g}")
-        if W is None:
-            ctrl = compose(Qr, U, V)
-            rational = self.rational
-        else:
-            Qh = Qr if self.rational else np.concatenate([Qr, np.ones(Qr.shape[:2] + (1,))], axis=-1)
-            ctrl = compose(Qh, U, V, W=W)
-            rational = True
+        ctrl, rational = self._compose(Qr, U, V, W)
         return [Patch(self.face.index, ctrl, rational, bot, top, total, est or pest, True)]
 
     def _reduce_surface(self, Q, budget):
