@@ -638,17 +638,14 @@ class _FaceContext:
         U0, du, V0, dv = frame
         B = _localize(bot.H, U0, du, V0, dv)
         T = _localize(top.H, U0, du, V0, dv)
-        lu, lv = _lipschitz(P, self.rational)
+        speeds = _lipschitz(P, self.rational)
         for q in range(1, 4):
-            sides, bound, est = [], 0.0, False
-            for S in (B, T):
-                Sr, (eu, ev), es = _reduce_side(S, q)
-                sides.append(Sr)
-                bound = max(bound, lu * eu + lv * ev)
-                est |= es
-            U, V, W = _map_grids(*sides)
-            if bound > self.tol or (self.m + self.n) * q > self.max_degree:
+            if (self.m + self.n) * q > self.max_degree:
                 return None
+            sides, bound, est = _reduce_sides((B, T), q, speeds)
+            if bound > self.tol:
+                return None
+            U, V, W = _map_grids(*sides)
             if np.all(_phi_jacobian(U, V, W) > 0):
                 ctrl, rational = self._compose(P, U, V, W)
                 return Patch(self.face.index, ctrl, rational, bot, top, bound, est, True)
@@ -702,14 +699,7 @@ class _FaceContext:
         budget = 0.5 * self.tol
         Qr, mr, nr, serr, est = self._reduce_surface(Q, budget * 0.5)
         q = max(1, self.max_degree // (mr + nr))
-        lu, lv = _lipschitz(Qr, self.rational)
-        sides, perr, pest = [], 0.0, False
-        for S in (Bq, Tq):
-            Sr, (eu, ev), es = _reduce_side(S, q)
-            sides.append(Sr)
-            # per axis: a thin tall cell has a large v-speed but its sides barely move in v
-            perr = max(perr, lu * eu + lv * ev)
-            pest |= es
+        sides, perr, pest = _reduce_sides((Bq, Tq), q, _lipschitz(Qr, self.rational))
         total = serr + perr
         if total > self.tol or mr + nr > self.max_degree:
             if depth >= _MAX_SPLIT_DEPTH:
@@ -765,6 +755,20 @@ def _lipschitz(Q: np.ndarray, rational: bool) -> tuple[float, float]:
     lu = m * np.max(np.linalg.norm(np.diff(P, axis=0), axis=-1)) if m else 0.0
     lv = n * np.max(np.linalg.norm(np.diff(P, axis=1), axis=-1)) if n else 0.0
     return float(f * lu), float(f * lv)
+
+
+def _reduce_sides(sides, q: int, speeds: tuple[float, float]) -> tuple[list[np.ndarray], float, bool]:
+    """Both sides of a cell at degree q (``_reduce_side``), with the 3D bound of the change: per axis,
+    |du| x u-speed + |dv| x v-speed (a thin tall cell has a large v-speed but its sides barely move
+    in v). Returns (sides, bound, estimated)."""
+    lu, lv = speeds
+    out, bound, est = [], 0.0, False
+    for S in sides:
+        R, (eu, ev), es = _reduce_side(S, q)
+        out.append(R)
+        bound = max(bound, lu * eu + lv * ev)
+        est |= es
+    return out, bound, est
 
 
 def _reduce_side(S: np.ndarray, q: int) -> tuple[np.ndarray, tuple[float, float], bool]:
