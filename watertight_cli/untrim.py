@@ -54,6 +54,8 @@ _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
 _ROOT_SAMPLES = 48
+_COMPACT_DIFF = 1e-8  # relative size of a power coefficient that counts as zero (differences lose ~2^d)
+_COMPACT_REL = 1e-13  # bound (relative to the patch size) below which a degree reduction changes nothing
 
 
 class UntrimError(WatertightError):
@@ -118,6 +120,9 @@ class FaceResult:
     snapped: int = 0  # pieces treated as iso-lines though they wiggle (by less than the snap)
     slivers: int = 0  # pieces narrower than a sliver (Tolerances.sliver_rel) left on a slab line
     problems: list[str] = field(default_factory=list)
+    # pieces that lie on a slab line (u-iso): the rungs of the cells beside them are on their edges
+    iso_pieces: list = field(default_factory=list)
+    eps: tuple[float, float] | None = None  # (u, v) distances below which uv values are one line
 
 
 @dataclass
@@ -423,6 +428,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
         # end's line, so one rule decides both the lines and which pieces lie on a line
         i, j = _nearest(lines, a), _nearest(lines, b)
         if i == j:
+            fr.iso_pieces.append(p)
             if b - a > g.ueps:
                 fr.slivers += 1  # narrower than a sliver: its strip is left to the neighbours
             else:
@@ -741,6 +747,39 @@ class _FaceContext:
         return R, mr, nr, e, False
 
 
+def _true_degree(c: np.ndarray) -> int:
+    """Degree of the polynomial whose Bernstein coefficients are the rows of ``c`` (d+1, k): the
+    highest j whose power coefficient C(d, j) Delta^j c_0 is above rounding."""
+    scale = float(np.abs(c).max()) or 1.0
+    r, diff = 0, c
+    for j in range(1, c.shape[0]):
+        diff = np.diff(diff, axis=0)
+        if np.abs(diff[0]).max() > _COMPACT_DIFF * scale:
+            r = j
+    return r
+
+
+def compact(ctrl: np.ndarray, rational: bool) -> np.ndarray:
+    """The same patch at its true bidegree: composition writes S o phi at (m + n) k, which is more than
+    the polynomial needs when S is affine in a direction (planes, the straight lines of cylinders
+    and cones). The reduction is accepted only when its certified bound is at rounding level, so
+    the patch does not change; lower degrees leave room for stage 2 (weights, elevation)."""
+    scale = float(np.ptp((ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl).reshape(-1, 3), axis=0).max())
+    wmin = float(ctrl[..., 3].min()) if rational else 1.0
+    out = ctrl
+    for axis in (0, 1):
+        c = np.moveaxis(out, axis, 0)
+        d = c.shape[0] - 1
+        flat = c.reshape(d + 1, -1)
+        # the estimate can be a little low (small power coefficients read as zero): try upwards
+        for r in range(max(_true_degree(flat), 1), min(d, max(_true_degree(flat), 1) + 3)):
+            red, bound = reduce_curve(flat, r, fix_ends=1)
+            if bound <= _COMPACT_REL * scale * wmin:
+                out = np.moveaxis(red.reshape((r + 1,) + c.shape[1:]), 0, axis)
+                break
+    return np.ascontiguousarray(out)
+
+
 def _lipschitz(Q: np.ndarray, rational: bool) -> tuple[float, float]:
     """Bounds of |dS/du| and |dS/dv| over [0, 1]^2 for a Bezier net: the hodograph's convex hull,
     m max |P_i+1,j - P_ij| (and the same in v). For rational nets the factor (w_max / w_min)^2 of the
@@ -947,12 +986,15 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
                 g: _FaceGeometry | None = None) -> FaceResult:
     fr = FaceResult(face.index)
     g = g or _FaceGeometry(face, model.diagonal, tol)
+    fr.eps = (g.ueps_lines, g.veps)
     ctx = _FaceContext(face, g, tol.approx_rel * model.diagonal, tol.max_degree)
     pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal)
     fr.closure = move + flat
     fr.approximated = bool(flat > g.snap)
     for ua, ubb, bot, top in _cells(face, pieces, g, fr):
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
+    for p in fr.patches:
+        p.ctrl = compact(p.ctrl, p.rational)
     if fr.snapped:
         fr.closure += g.snap
     approx = [p for p in fr.patches if p.approximated]

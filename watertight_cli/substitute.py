@@ -1,0 +1,655 @@
+"""Stage 2: one shared curve per boundary, substituted into the patches' boundary rows.
+
+Stage 1 leaves every boundary patch with a side S_f(pc_f(w)) on its face's surface; the two faces
+of an edge (and the edge's 3D curve C) are three different curves. Here every patch side that lies
+on an edge gets the edge's shared curve K instead:
+
+- K is the edge's 3D curve C restricted to the side's parameter interval [wa, wb] (the paper's
+  choice). The edge plan put C's knots among every face's cuts, so a side lies inside one Bezier
+  span of C and K is an exact sub-curve of it. Every K is computed once per (edge, interval) and
+  cached, with the interval in increasing order, so two faces get the same bits.
+- A side collapsed to a pole gets the pole's vertex.
+- Corners on an edge move to one value shared by every patch that touches them: the model vertex
+  at the edge's ends, C(w) inside the edge.
+- The rung of a cell that lies on a u-iso piece of the boundary is a boundary side too; its edge
+  parameters come from the piece (the rung is linear in v, so a pcurve whose parameter is not
+  affine in v gives K a different speed along the side; the change is measured like any other).
+- Inner sides that two patches of a face share get the first patch's row in both, at a common
+  degree, so they are bitwise equal; inner sides with no partner end on a T-vertex and are counted.
+- Rational K are put in standard form (end weights 1, by a Moebius change of parameter that keeps
+  the shape), so corners where two K meet agree on their weight.
+
+The change of each patch against its stage-1 patch is bounded by the largest control-point move
+when the weights did not change (convex hull property); where weights changed it is sampled, and
+the face's figure is marked as an estimate. Numpy only; the B-rep is built in ``occ.assemble``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import brentq
+from scipy.spatial import cKDTree
+
+from .core.approx import fit_curve
+from .core.bernstein import basis, product
+from .core.bezier import curve_segment, elevate_curve, elevate_surface, rational_curve_eval
+from .core.bspline import to_bezier
+from .core.reduce import reduce_curve
+from .model import Model
+from .tolerances import Tolerances
+from .untrim import Patch, UntrimResult, cell_map
+
+__all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
+
+#: side name -> (index into ctrl selecting its row, direction "s" or "t", corners at its start and end)
+SIDES = {
+    "bottom": ((slice(None), 0), "s", ((0, 0), (1, 0))),
+    "top": ((slice(None), -1), "s", ((0, 1), (1, 1))),
+    "left": ((0, slice(None)), "t", ((0, 0), (0, 1))),
+    "right": ((-1, slice(None)), "t", ((1, 0), (1, 1))),
+}
+_DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
+_POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
+_SAMPLES = 17  # grid per direction for the sampled change of patches whose weights changed
+
+
+@dataclass
+class FaceSubstitution:
+    face: int
+    moved: float = 0.0  # largest change of a patch against its stage-1 patch (model units)
+    estimated: bool = False  # some patch's change was sampled (its weights changed)
+    boundary_sides: int = 0
+    inner_shared: int = 0  # inner sides made bitwise equal with their partner
+    inner_unpaired: int = 0  # inner sides without a partner of the same extent (T-junctions)
+    inner_reparam: int = 0  # shared inner sides left as they are: same line, other parameterization
+    elevated: int = 0  # patches whose degree was raised to take a shared curve
+    corners_moved: int = 0  # corners moved onto a shared curve in patches with no side there
+    problems: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Substitution:
+    faces: list[FaceSubstitution]
+    curves: dict[int, str]  # edge -> which shared curve it got: "3d curve" or "pole"
+    t_vertices: int = 0  # corners on an edge that only some of the edge's faces have
+    straddles: int = 0  # sides whose interval crosses a knot of the edge's curve (should be 0)
+
+    @property
+    def moved(self) -> float:
+        return max((f.moved for f in self.faces), default=0.0)
+
+
+@dataclass
+class _Ref:
+    """What a patch side lies on: an edge interval (w at the side's start and end), or a pole."""
+
+    edge: int
+    wa: float
+    wb: float
+    pole: bool = False
+
+
+class _Curves:
+    """Shared curves and corner points of a model, each computed once.
+
+    A segment of a polynomial 3D curve is K itself. A segment of a rational one is decided once
+    from all the patch rows that will take it (``decide``): it stays rational (exact) when some
+    rational row has the same weights up to a scale and a Moebius change of parameter (the row
+    then takes it exactly); otherwise the lowest-degree polynomial within ``poly_tol`` replaces it,
+    so polynomial patches stay polynomial (its sampled distance from C is recorded).
+    """
+
+    def __init__(self, model: Model, poly_tol: float, max_degree: int):
+        self.model = model
+        self.poly_tol = poly_tol
+        self.max_degree = max_degree
+        self._spans: dict[int, tuple[np.ndarray, np.ndarray, bool]] = {}
+        self._k: dict[tuple[int, float, float], np.ndarray] = {}
+        self.fit_error: dict[int, float] = {}
+        self._moves: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._fits: dict[int, list] = {}  # edge -> per span (polynomial net, sampled error)
+        self.straddles = 0
+
+    def spans(self, e: int):
+        if e not in self._spans:
+            c = self.model.edges[e].curve
+            br, sp = to_bezier(c.knots, c.degree, c.homogeneous())
+            self._spans[e] = (br, sp, c.rational)
+        return self._spans[e]
+
+    def rational(self, e: int) -> bool:
+        return self.spans(e)[2]
+
+    @staticmethod
+    def key(e: int, wa: float, wb: float) -> tuple[int, float, float]:
+        return (e, wa, wb) if wa <= wb else (e, wb, wa)
+
+    def corner_key(self, e: int, w: float):
+        edge = self.model.edges[e]
+        eps = 1e-11 * max(edge.last - edge.first, 1e-300)
+        if abs(w - edge.first) <= eps:
+            return ("v", edge.vertices[0])
+        if abs(w - edge.last) <= eps:
+            return ("v", edge.vertices[1])
+        return ("e", e, float(w))
+
+    def corner(self, key) -> np.ndarray:
+        if key[0] == "v":
+            return self.model.vertices[key[1]]
+        br, sp, rat = self.spans(key[1])
+        h = self.exact(key[1], key[2], key[2])[0]
+        return h[:3] / h[3] if rat else h
+
+    def exact(self, e: int, lo: float, hi: float) -> np.ndarray:
+        """C' on [lo, hi] (lo <= hi), homogeneous when rational: C plus the affine-in-w correction
+        that takes its ends onto the model's vertices. Every segment and corner of the edge is
+        taken from this one curve, so a side split at a T-vertex still matches its neighbours."""
+        br, sp, rat = self.spans(e)
+        j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(sp) - 1))
+        x0, x1 = br[j], br[j + 1]
+        eps = 1e-9 * (x1 - x0)
+        if lo < x0 - eps or hi > x1 + eps:
+            self.straddles += 1  # the interval crosses a knot of C: K extends the span's polynomial
+        K = curve_segment(sp[j], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
+        d0, d1 = self.end_moves(e)
+        if not (d0.any() or d1.any()):
+            return K
+        edge = self.model.edges[e]
+        lam = (np.array([lo, hi]) - edge.first) / (edge.last - edge.first)
+        D = np.outer(1.0 - lam, d0) + np.outer(lam, d1)  # degree 1 in w
+        if not rat:
+            return K + (elevate_curve(D, K.shape[0] - 2) if K.shape[0] > 2 else D)
+        Dw = product(D, K[:, 3])  # kappa * D, degree k + 1
+        return np.concatenate([elevate_curve(K, 1)[:, :3] + Dw, elevate_curve(K[:, 3:], 1)], axis=1)
+
+    def end_moves(self, e: int) -> tuple[np.ndarray, np.ndarray]:
+        if e not in self._moves:
+            edge = self.model.edges[e]
+            ends = edge.curve.evaluate(np.array([edge.first, edge.last]))
+            v = self.model.vertices[list(edge.vertices)]
+            self._moves[e] = (v[0] - ends[0], v[1] - ends[1])
+        return self._moves[e]
+
+    def decide(self, e: int, uses: list[tuple[float, float, np.ndarray, float]]) -> None:
+        """Choose the shared curve of a rational edge from the (lo, hi, row, patch size) uses: C'
+        itself, or a polynomial fit of each of its spans, whichever is predicted to move the
+        patches less (a weight mismatch of relative size r moves a patch by about r times its
+        size). The choice is per edge and the fit per span, so the sides that meet at a T-vertex
+        are subdivisions of one curve."""
+        if not self.rational(e):
+            return
+        exact = max((_mismatch(r, self.exact(e, lo, hi), self.max_degree) * size
+                     for lo, hi, r, size in uses), default=0.0)
+        if exact == 0.0:
+            return
+        br, sp, _ = self.spans(e)
+        fits = []
+        for x0, x1 in zip(br[:-1], br[1:], strict=True):
+            fit = self._polynomial(self.exact(e, float(x0), float(x1)))
+            if fit is None:
+                return
+            fits.append(fit)
+        self._fits[e] = fits
+        cost = max(f[1] for f in fits) + max(
+            (_mismatch(r, _homog(self.segment(e, lo, hi)), self.max_degree) * size
+             for lo, hi, r, size in uses if r.shape[1] == 4), default=0.0)
+        self._k.clear()
+        if cost < exact:
+            self.fit_error[e] = max(f[1] for f in fits)
+        else:
+            del self._fits[e]
+
+    def _polynomial(self, K: np.ndarray):
+        xyz = lambda t: rational_curve_eval(K, t)  # noqa: E731
+        for q in range(max(1, K.shape[0] - 1), self.max_degree + 1):
+            fit = fit_curve(xyz, q, self.poly_tol)
+            if fit is not None:
+                return fit
+        return None
+
+    def segment(self, e: int, wa: float, wb: float) -> np.ndarray:
+        """The shared curve on [wa, wb] (reversed when wa > wb): (k+1, 3), or (k+1, 4) homogeneous."""
+        key = self.key(e, wa, wb)
+        K = self._k.get(key)
+        if K is None:
+            lo, hi = key[1], key[2]
+            if e in self._fits:
+                br = self.spans(e)[0]
+                j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(br) - 2))
+                x0, x1 = br[j], br[j + 1]
+                K = curve_segment(self._fits[e][j][0], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
+            else:
+                K = self.exact(e, lo, hi)
+            self._k[key] = K
+        return K if wa <= wb else K[::-1]
+
+
+def _weight_factor(kappa: np.ndarray, budget: int) -> np.ndarray:
+    """K's weight function kappa (normalized to kappa[0] = 1), or its least-squares reduction to the
+    degree ``budget`` that a polynomial patch can still take (ends kept)."""
+    kappa = kappa / kappa[0]
+    k = len(kappa) - 1
+    if k <= budget:
+        return kappa
+    if budget < 1:
+        return np.ones(1)
+    return reduce_curve(kappa[:, None], budget, fix_ends=1)[0][:, 0]
+
+
+def _divide(omega: np.ndarray, kappa: np.ndarray) -> np.ndarray | None:
+    """g with kappa * g = omega (Bernstein coefficients, degree len(omega) - len(kappa)), or None when
+    omega has no such factor. A row S(pc(w)) of a rational patch and a segment of a 3D curve that
+    is the same rational curve in the same parameter differ by such a common factor; the row then
+    takes K * g, which has the row's own weights."""
+    d, k = len(omega) - 1, len(kappa) - 1
+    if d < k:
+        return None
+    A = np.stack([product(kappa, e) for e in np.eye(d - k + 1)], axis=1)
+    g, *_ = np.linalg.lstsq(A, omega, rcond=None)
+    if np.abs(A @ g - omega).max() > _DIVIDE_REL * np.abs(omega).max():
+        return None
+    return g
+
+
+def _mismatch(row: np.ndarray, K: np.ndarray, max_degree: int) -> float:
+    """Relative weight mismatch left when ``row`` takes K after the best scale and Moebius change of
+    parameter (0 when the weights agree). A polynomial row is first multiplied by K's weight
+    function, reduced to the degree budget (see ``_weight_factor``)."""
+    d, k = row.shape[0] - 1, K.shape[0] - 1
+    if row.shape[1] == 3:
+        if K.shape[1] == 3:
+            return 0.0
+        w_row = _weight_factor(K[:, 3], max_degree - max(d, k))
+    else:
+        w_row = row[:, 3]
+        if _divide(w_row, K[:, 3] if K.shape[1] == 4 else np.ones(k + 1)) is not None:
+            return 0.0
+    n = max(len(w_row) - 1, k)
+    w_row = elevate_curve(w_row[:, None], n - len(w_row) + 1)[:, 0]
+    w = K[:, 3] if K.shape[1] == 4 else np.ones(k + 1)
+    w = elevate_curve(w[:, None], n - k)[:, 0] if n > k else w
+    r = np.log(w_row / w)
+    line = r[0] + (r[-1] - r[0]) * np.arange(n + 1) / max(n, 1)
+    return float(np.abs(r - line).max())
+
+
+def _t_at(H: np.ndarray, axis: int, x: float) -> float:
+    """Parameter where a monotone planar homogeneous piece reaches coordinate ``axis`` = x (clamped)."""
+    def f(t):
+        h = basis(H.shape[0] - 1, np.atleast_1d(t)) @ H
+        return float(h[0, axis] / h[0, 2] - x)
+
+    a, b = f(0.0), f(1.0)
+    if a == 0.0:
+        return 0.0
+    if b == 0.0:
+        return 1.0
+    if a * b > 0:
+        return 0.0 if abs(a) < abs(b) else 1.0
+    return brentq(f, 0.0, 1.0, xtol=1e-15, rtol=1e-15)
+
+
+def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) -> _Ref | None:
+    """The edge interval of a rung from uv ``a`` to ``b`` when it lies on a u-iso boundary piece."""
+    for p in pieces:
+        uv = p.H[[0, -1], :2] / p.H[[0, -1], 2:3]
+        if max(abs(a[0] - uv[0, 0]), abs(b[0] - uv[0, 0]), abs(a[0] - uv[1, 0])) > 2 * eps[0]:
+            continue
+        vlo, vhi = uv[:, 1].min(), uv[:, 1].max()
+        if min(a[1], b[1]) < vlo - eps[1] or max(a[1], b[1]) > vhi + eps[1]:
+            continue
+        if p.degenerate:
+            return _Ref(p.edge, p.w0, p.w1, pole=True)
+        ws = [p.w0 + _t_at(p.H, 1, float(x[1])) * (p.w1 - p.w0) for x in (a, b)]
+        # snap to the piece's ends, so corners at plan parameters get the plan's floats
+        ws = [p.w0 if abs(x[1] - uv[0, 1]) <= eps[1] else p.w1 if abs(x[1] - uv[1, 1]) <= eps[1] else w
+              for x, w in zip((a, b), ws, strict=True)]
+        return _Ref(p.edge, ws[0], ws[1])
+    return None
+
+
+def _refs(patch: Patch, fr_pieces, eps) -> tuple[dict[str, _Ref | None], np.ndarray]:
+    """Each side's edge reference (None for inner sides) and the patch's corner uv (2, 2, 2)."""
+    cm = cell_map(patch, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
+    out: dict[str, _Ref | None] = {}
+    for name, side in (("bottom", patch.bottom), ("top", patch.top)):
+        if side.edge is None:
+            out[name] = None
+        else:
+            out[name] = _Ref(side.edge, side.w0, side.w1, pole=side.degenerate)
+    out["left"] = _rung_ref(fr_pieces, cm[0, 0], cm[0, 1], eps)
+    out["right"] = _rung_ref(fr_pieces, cm[1, 0], cm[1, 1], eps)
+    return out, cm
+
+
+def _cartesian(H: np.ndarray, rational: bool) -> np.ndarray:
+    return H[..., :3] / H[..., 3:4] if rational else H
+
+
+def _change(old: np.ndarray, new: np.ndarray, rational: bool) -> tuple[float, bool]:
+    """Bound of max |new - old| over the patch (both the same surface type and degree): the largest
+    control-point move when the weights are equal (convex hull), else sampled and flagged."""
+    if not rational:
+        return float(np.linalg.norm(new - old, axis=-1).max()), False
+    if np.allclose(old[..., 3], new[..., 3], rtol=1e-12, atol=0.0):
+        return float(np.linalg.norm(_cartesian(new, True) - _cartesian(old, True), axis=-1).max()), False
+    s = np.linspace(0.0, 1.0, _SAMPLES)
+    s = np.unique(np.concatenate([s, s[:3] * 0.1, 1 - s[:3] * 0.1]))
+
+    def pts(H):
+        m1, n1, d = H.shape
+        h = basis(n1 - 1, s)[None] @ (basis(m1 - 1, s) @ H.reshape(m1, n1 * d)).reshape(-1, n1, d)
+        return h[..., :3] / h[..., 3:4]
+
+    return float(np.linalg.norm(pts(new) - pts(old), axis=-1).max()), True
+
+
+def _refit(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """A rational patch whose weights changed (a row took a K with other weights): refit its inner
+    control points (all but the four sides, which neighbours share) so the surface stays on the
+    stage-1 patch. With the new weights fixed the fit is linear: sum_ij B_i B_j w_ij P_ij = D(s, t)
+    S(s, t), solved by least squares on a Chebyshev grid."""
+    m1, n1 = new.shape[:2]
+    if m1 < 3 or n1 < 3:
+        return new
+    s = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, 2 * m1 + 1))
+    t = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, 2 * n1 + 1))
+    bs, bt = basis(m1 - 1, s), basis(n1 - 1, t)
+    target = np.einsum("ai,bj,ijd->abd", bs, bt, old)
+    S = target[..., :3] / target[..., 3:4]
+    w = new[..., 3]
+    D = bs @ w @ bt.T
+    free = np.zeros((m1, n1), bool)
+    free[1:-1, 1:-1] = True
+    fixed = np.where(free[..., None], 0.0, new[..., :3])
+    rhs = D[..., None] * S - np.einsum("ai,bj,ijd->abd", bs, bt, fixed)
+    A = np.einsum("ai,bj,ij->abij", bs, bt, w)[..., free].reshape(len(s) * len(t), -1)
+    sol, *_ = np.linalg.lstsq(A, rhs.reshape(-1, 3), rcond=None)
+    out = new.copy()
+    out[free, :3] = sol * w[free][:, None]
+    return out
+
+
+def _row(H: np.ndarray, name: str) -> np.ndarray:
+    return H[SIDES[name][0]]
+
+
+def _degrees_for(H: np.ndarray, rows: dict[str, np.ndarray]) -> tuple[int, int]:
+    ds, dt = H.shape[0] - 1, H.shape[1] - 1
+    for name, K in rows.items():
+        if SIDES[name][1] == "s":
+            ds = max(ds, K.shape[0] - 1)
+        else:
+            dt = max(dt, K.shape[0] - 1)
+    return ds, dt
+
+
+def _put(H: np.ndarray, name: str, K: np.ndarray) -> bool:
+    """Write K into the row ``name`` of H at H's degree; False when the row's weights changed.
+
+    In a rational H the row keeps its weights where they are K's times a common factor (see
+    ``_divide``); otherwise K's weights are matched to the row's corner weights by a scale and a
+    Moebius change of parameter (both keep K's shape), so the corners, which two rows share, keep
+    their weights, and the caller refits the inner control points."""
+    idx, axis, _ = SIDES[name]
+    d = (H.shape[0] if axis == "s" else H.shape[1]) - 1
+    if H.shape[-1] == 4 and d > 0:
+        row = H[idx]
+        g = _divide(row[:, 3], K[:, 3])
+        if g is not None:
+            Kg = product(K, g) if len(g) > 1 else K * g[0]
+            H[idx] = np.concatenate([Kg[:, :3] / Kg[:, 3:4] * row[:, 3:4], row[:, 3:4]], axis=1)
+            return True
+    if K.shape[0] - 1 < d:
+        K = elevate_curve(K, d - (K.shape[0] - 1))
+    if H.shape[-1] == 4 and d > 0:
+        row = H[idx]
+        rho = ((row[-1, 3] / row[0, 3]) * (K[0, 3] / K[-1, 3])) ** (1.0 / d)
+        K = K * (rho ** np.arange(d + 1))[:, None]
+        K = K * (row[0, 3] / K[0, 3])
+        same = bool(np.allclose(K[:, 3], row[:, 3], rtol=1e-12, atol=0.0))
+        H[idx] = K
+        return same
+    H[idx] = K
+    return True
+
+
+def _homog(K: np.ndarray) -> np.ndarray:
+    return K if K.shape[1] == 4 else np.concatenate([K, np.ones((K.shape[0], 1))], axis=1)
+
+
+def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=None) -> Substitution:
+    """Put the shared curves into every patch of ``result`` (in place); returns what changed."""
+    curves = _Curves(model, _POLY_REL * tol.approx_rel * model.diagonal, tol.max_degree)
+    infos = []
+    users: dict[tuple, list[np.ndarray]] = {}
+    corner_uses: dict[tuple, int] = {}
+    used: dict[int, str] = {}
+    for fr in result.faces:  # pass 1: what every side lies on, and the rows each segment goes into
+        eps = fr.eps if fr.eps is not None else (0.0, 0.0)
+        info = []
+        for p in fr.patches:
+            refs, cm = _refs(p, fr.iso_pieces, eps)
+            info.append((refs, cm))
+            for name, ref in refs.items():
+                if ref is None or ref.pole:
+                    continue
+                row = _row(p.ctrl, name)
+                if ref.wa > ref.wb:
+                    row = row[::-1]
+                size = float(np.ptp(_cartesian(p.ctrl, p.rational).reshape(-1, 3), axis=0).max())
+                lo, hi = sorted((ref.wa, ref.wb))
+                users.setdefault(ref.edge, []).append((lo, hi, row, size))
+        infos.append(info)
+    for e, uses in users.items():
+        curves.decide(e, uses)
+    faces: list[FaceSubstitution] = []
+    for fr, info in zip(result.faces, infos, strict=True):  # pass 2: substitute
+        fs = FaceSubstitution(fr.face)
+        faces.append(fs)
+        moved_uv: list[np.ndarray] = []
+        moved_xyz: list[np.ndarray] = []
+        info_cm = {id(p): {c: cm[c] for c in ((0, 0), (1, 0), (0, 1), (1, 1))}
+                   for p, (_, cm) in zip(fr.patches, info, strict=True)}
+        for p, (refs, _) in zip(fr.patches, info, strict=True):
+            rows: dict[str, np.ndarray] = {}
+            corners: dict[tuple[int, int], tuple] = {}
+            for name, ref in refs.items():
+                if ref is None:
+                    continue
+                fs.boundary_sides += 1
+                c0, c1 = SIDES[name][2]
+                if ref.pole:
+                    corners[c0] = corners[c1] = ("v", model.edges[ref.edge].vertices[0])
+                    used[ref.edge] = "pole"
+                    continue
+                ka, kb = curves.corner_key(ref.edge, ref.wa), curves.corner_key(ref.edge, ref.wb)
+                for k in (ka, kb):
+                    if k[0] == "e":
+                        corner_uses[k] = corner_uses.get(k, 0) + 1
+                rows[name] = curves.segment(ref.edge, ref.wa, ref.wb)
+                corners[c0], corners[c1] = ka, kb
+                used[ref.edge] = "3d curve, polynomial fit" if ref.edge in curves.fit_error else "3d curve"
+                fs.moved = max(fs.moved, curves.fit_error.get(ref.edge, 0.0))
+            if corners:
+                _apply(p, rows, corners, curves, fs, tol)
+                for c, key in corners.items():
+                    moved_uv.append(info_cm[id(p)][c])
+                    moved_xyz.append(curves.corner(key))
+        _move_corners(fr, info, moved_uv, moved_xyz, fs)
+        _share_inner(fr, info, fs, tol, model.diagonal)
+        if progress is not None:
+            progress(1)
+    uses_per_edge = {e.index: e.uses for e in model.edges}
+    t_vertices = sum(1 for k, n in corner_uses.items() if n < 2 * uses_per_edge[k[1]])
+    return Substitution(faces, used, t_vertices, curves.straddles)
+
+
+def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves,
+           fs: FaceSubstitution, tol: Tolerances) -> None:
+    """Substitute the rows and the moved corners of one patch, elevating it where needed.
+
+    A polynomial patch that takes a rational K is first written as the same surface with K's weight
+    function (its homogeneous net times kappa(s), exact), so its row takes K with equal weights."""
+    was_rational = p.rational
+    rational = p.rational or any(K.shape[1] == 4 for K in rows.values())
+    H = p.ctrl
+    if rational and not was_rational:
+        H = np.concatenate([H, np.ones(H.shape[:2] + (1,))], axis=-1)
+        for axis, names in ((0, ("bottom", "top")), (1, ("left", "right"))):
+            ks = [rows[n] for n in names if n in rows and rows[n].shape[1] == 4]
+            if ks:
+                d = max(H.shape[axis] - 1, ks[0].shape[0] - 1)
+                f = _weight_factor(ks[0][:, 3], tol.max_degree - d)
+                if len(f) > 1:
+                    H = product(H, f, axis=axis)
+        rows = {k: _homog(K) for k, K in rows.items()}
+    elif rational:
+        rows = {k: _homog(K) for k, K in rows.items()}
+    ds, dt = _degrees_for(H, rows)
+    if max(ds, dt) > tol.max_degree:
+        fs.problems.append(f"face {p.face}: a shared curve needs degree {max(ds, dt)} "
+                           f"> {tol.max_degree} in a patch")
+        return
+    ru, rv = ds - (H.shape[0] - 1), dt - (H.shape[1] - 1)
+    if ru or rv:
+        H = elevate_surface(H, ru, rv)
+    if H.shape != p.ctrl.shape[:2] + (H.shape[2],):
+        fs.elevated += 1
+    old = H.copy()
+    for name, K in rows.items():
+        _put(H, name, K)
+    ii = {0: 0, 1: -1}
+    for (s, t), key in corners.items():
+        x = curves.corner(key)
+        if rational:
+            H[ii[s], ii[t]] = np.append(x * H[ii[s], ii[t], 3], H[ii[s], ii[t], 3])
+        else:
+            H[ii[s], ii[t]] = x
+    # a side whose two corners are one point (a pole, a collapsed rung) stays one point
+    for name, (idx, _, (c0, c1)) in SIDES.items():
+        if c0 in corners and corners.get(c1) == corners[c0] and name not in rows:
+            H[idx] = H[ii[c0[0]], ii[c0[1]]]
+    if rational and not np.allclose(old[..., 3], H[..., 3], rtol=1e-12, atol=0.0):
+        H = _refit(old, H)
+    moved, est = _change(old, H, rational)
+    fs.moved = max(fs.moved, moved)
+    fs.estimated = fs.estimated or est
+    p.ctrl, p.rational = H, rational
+    p.bound += moved
+
+
+def _move_corners(fr, info, uv: list, xyz: list, fs: FaceSubstitution) -> None:
+    """Corners that moved onto a shared curve move in every patch of the face that has a corner
+    there, also in patches that touch the boundary only at that corner."""
+    if not uv:
+        return
+    pts = np.array(uv)
+    span = np.ptp(np.concatenate([pts, np.array([cm.reshape(-1, 2).min(0) for _, cm in info]),
+                                  np.array([cm.reshape(-1, 2).max(0) for _, cm in info])]), axis=0)
+    span[span == 0] = 1.0
+    tree = cKDTree(pts / span)
+    ii = {0: 0, 1: -1}
+    for p, (_, cm) in zip(fr.patches, info, strict=True):
+        for (s, t) in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            d, j = tree.query(cm[s, t] / span)
+            if d > 1e-9:
+                continue
+            x = xyz[j]
+            H = p.ctrl
+            cur = H[ii[s], ii[t], :3] / H[ii[s], ii[t], 3] if p.rational else H[ii[s], ii[t]]
+            if np.array_equal(cur, x):
+                continue
+            move = float(np.linalg.norm(cur - x))
+            H = H.copy()
+            H[ii[s], ii[t], :3] = x * (H[ii[s], ii[t], 3] if p.rational else 1.0)
+            p.ctrl = H
+            p.bound += move
+            fs.moved = max(fs.moved, move)
+            fs.corners_moved += 1
+
+
+def _share_inner(fr, info, fs: FaceSubstitution, tol: Tolerances, diagonal: float) -> None:
+    """Make inner sides that two patches share bitwise equal (the first patch's row wins)."""
+    items = []  # (patch index, side name, start uv, end uv)
+    for i, (refs, cm) in enumerate(info):
+        for name, (_, _, (c0, c1)) in SIDES.items():
+            if refs[name] is None:
+                items.append((i, name, cm[c0], cm[c1]))
+    if not items:
+        return
+    pts = np.array([[*a, *b] for _, _, a, b in items])
+    span = np.ptp(pts.reshape(-1, 2), axis=0)
+    span[span == 0] = 1.0
+    scale = np.tile(1.0 / span, 2)
+    fwd = pts * scale
+    rev = np.concatenate([pts[:, 2:], pts[:, :2]], axis=1) * scale
+    tree = cKDTree(fwd)
+    done = set()
+    eps = 1e-9
+    patches = fr.patches
+    for k, (i, name, _, _) in enumerate(items):
+        if k in done:
+            continue
+        partners = [j for j in tree.query_ball_point(fwd[k], eps) if j != k and items[j][0] != i]
+        flip = False
+        if not partners:
+            partners = [j for j in tree.query_ball_point(rev[k], eps) if j != k and items[j][0] != i]
+            flip = True
+        partners = [j for j in partners if j not in done]
+        done.add(k)
+        if not partners:
+            # the same extent reversed or not at all: a side with a T-vertex on it (or a side on
+            # the face's boundary that no edge claims)
+            fs.inner_unpaired += 1
+            continue
+        j = partners[0]
+        done.add(j)
+        src, dst = patches[i], patches[items[j][0]]
+        row = _row(src.ctrl, name)
+        if flip:
+            row = row[::-1]
+        _copy_row(dst, items[j][1], row, src.rational, fs, tol, diagonal)
+        fs.inner_shared += 1
+
+
+def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: FaceSubstitution,
+              tol: Tolerances, diagonal: float) -> None:
+    was_rational = p.rational
+    rational = p.rational or row_rational
+    H = p.ctrl
+    if rational and not was_rational:
+        H = np.concatenate([H, np.ones(H.shape[:2] + (1,))], axis=-1)
+    if rational and not row_rational:
+        row = _homog(row)
+    ds, dt = _degrees_for(H, {name: row})
+    if max(ds, dt) > tol.max_degree:
+        fs.problems.append(f"face {p.face}: a shared inner side needs degree {max(ds, dt)}")
+        return
+    ru, rv = ds - (H.shape[0] - 1), dt - (H.shape[1] - 1)
+    if ru or rv:
+        H = elevate_surface(H, ru, rv)
+        fs.elevated += 1
+    old = H.copy()
+    own = _row(H, name)
+    d = own.shape[0] - 1
+    if row.shape[0] - 1 < d:
+        row = elevate_curve(row, d - (row.shape[0] - 1))
+    if np.array_equal(own, row):
+        p.ctrl, p.rational = H, rational
+        return
+    xyz = lambda r: r[:, :3] / r[:, 3:4] if rational else r  # noqa: E731
+    if np.linalg.norm(xyz(own) - xyz(row), axis=1).max() > tol.approx_rel * diagonal:
+        # the same line in another parameterization (a side that follows an edge's parameter):
+        # copying would slide the patch along it; the two stay geometrically equal as they are
+        fs.inner_reparam += 1
+        return
+    H = H.copy()
+    H[SIDES[name][0]] = row
+    moved, est = _change(old, H, rational)
+    fs.moved = max(fs.moved, moved)
+    fs.estimated = fs.estimated or est
+    p.ctrl, p.rational = H, rational
+    p.bound += moved
