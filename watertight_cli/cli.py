@@ -8,7 +8,8 @@ Exit codes (also in ``watertight --help``):
   0  all files processed and within the gates
   1  some file failed (unreadable, invalid, or the conversion failed)
   2  usage error (bad option or argument)
-  3  a gate was exceeded (``--max-gap``)
+  3  a gate was exceeded (``--max-gap``, ``--max-deviation``) or, for convert, an invariant of
+     the written model failed
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ Exit codes:
   0  all files processed and within the gates
   1  some file failed (unreadable, invalid or not convertible)
   2  usage error
-  3  a gate (--max-gap) was exceeded
+  3  a gate (--max-gap, --max-deviation) was exceeded, or an invariant of a converted
+     model (I1-I4, validity) failed; the output is written and the report says which
 """
 
 
@@ -176,9 +178,9 @@ def _progress_factory(enabled: bool, path: str):
 @click.argument("source", type=click.Path(dir_okay=False))
 @click.argument("target", type=click.Path(dir_okay=False))
 @click.option("--stage", type=click.Choice(["full", "untrim"]), default="full", show_default=True,
-              help="untrim: stage 1 only, every face becomes untrimmed Bezier patches that keep its "
-                   "shape (neighbours do not share edges yet). full: stage 1 and stage 2 (shared "
-                   "boundaries); stage 2 is not built yet.")
+              help="full: untrimmed Bezier patches whose neighbours share one boundary curve "
+                   "(a watertight B-rep). untrim: stage 1 only, patches that keep their faces' "
+                   "shapes but share no edges.")
 @click.option("--max-degree", type=click.IntRange(1, 25), default=25, show_default=True,
               help="Largest patch degree. Cells whose exact degree is higher are approximated within "
                    "--tolerance.")
@@ -189,45 +191,75 @@ def _progress_factory(enabled: bool, path: str):
 @click.option("--json", "as_json", is_flag=True, help="Print the conversion report as JSON on stdout.")
 @click.option("--overwrite/--no-overwrite", default=True, show_default=True,
               help="Replace TARGET when it exists.")
+@click.option("--fast", is_flag=True, help="Do not read the written file back to verify it.")
+@click.option("--max-gap", type=float, default=None, metavar="X",
+              help="Gate: exit 3 when the gap after conversion exceeds X (model units).")
+@click.option("--max-deviation", type=float, default=None, metavar="X",
+              help="Gate: exit 3 when a face's deviation bound exceeds X (model units).")
 @click.option("-q", "--quiet", is_flag=True, help="No table and no progress bar on stderr.")
-def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, quiet):
-    """Convert SOURCE (STEP or IGES) into untrimmed Bezier patches written to TARGET.
+def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, fast, max_gap,
+            max_deviation, quiet):
+    """Convert SOURCE (STEP or IGES) into a watertight model of untrimmed Bezier patches, TARGET.
 
-    TARGET's suffix picks the format (.step/.stp or .igs/.iges). Every patch is verified against
-    its input face (sampled deviation within the bound, trimming sides on the input's
-    surface(pcurve), summed patch area against the face area, no folds) before anything is
-    written; the file is written atomically, so a failed run leaves no partial TARGET.
+    Every trimmed face is split into Bezier patches on [0,1]^2 (stage 1); then every patch side
+    on an edge takes the edge's one shared curve, so neighbouring faces meet exactly (stage 2),
+    and the patches are joined into shells and solids. TARGET's suffix picks the format
+    (.step/.stp or .igs/.iges).
 
-    The report gives each face's guaranteed deviation bound: the approximation where the degree
-    budget forced one, plus the repairs of the input (closing uv gaps between consecutive
-    pcurves, straightening pcurves that wiggle around an iso-line within half the tolerance).
+    Checks: every stage-1 patch is verified against its input face (sampled deviation within
+    the bound, trimming sides on the input's surface(pcurve), summed area, no folds) before
+    anything is written; the file is written atomically (no partial TARGET); then it is read
+    back and measured: all faces untrimmed Bezier (I1), gaps after at most 1e-12 of the
+    diagonal (I2), no new free edges (I3), each face's deviation bound within the tolerance plus
+    the input's own gap at its edges (I4), kernel validity. A failed invariant exits 3, with the
+    file written.
+
+    The report (stderr table, --json on stdout) gives the gap before and after, T-junctions,
+    the shared curve used per edge, and per face the deviation bound: stage 1's (approximation
+    where the degree budget forced one, repairs of the input) plus the substitution's move.
     """
     from .convert import convert_file, format_untrim_table
     from .report import SCHEMA_VERSION
+    from .stage2 import format_full_table
     from .tolerances import Tolerances
 
-    if stage == "full":
-        _err("the full conversion needs stage 2 (shared boundaries), which is not built yet; "
-             "run with --stage untrim for stage 1 only")
-        sys.exit(EXIT_USAGE)
     tol = Tolerances(approx_rel=tolerance, max_degree=max_degree)
     progress = _progress_factory(not quiet, source)
     try:
         rep, error = _run_guarded(
-            lambda: convert_file(source, target, tol, stage, progress, overwrite), source)
+            lambda: convert_file(source, target, tol, stage, progress, overwrite, fast), source)
     finally:
         if progress is not None:
             progress.close()
+    gate = None
+    if rep is not None and stage == "full":
+        gate = _convert_gates(rep, max_gap, max_deviation)
     run = RunReport()
-    run.add(FileOutcome(source, rep, error))
+    run.add(FileOutcome(source, rep, error, gate))
     if error:
         _err(error)
     elif not quiet:
-        click.echo(format_untrim_table(rep), err=True)
+        click.echo((format_full_table if stage == "full" else format_untrim_table)(rep), err=True)
+    if gate:
+        _err(gate)
     if as_json:
         doc = rep or {"schema_version": SCHEMA_VERSION, "file": source, "error": error}
         sys.stdout.write(json.dumps(doc, indent=1, default=_jsonable) + "\n")
     sys.exit(run.exit_code)
+
+
+def _convert_gates(rep: dict, max_gap, max_deviation) -> str | None:
+    """The first reason to exit 3 for a converted file: a failed invariant or an exceeded gate."""
+    failed = [k for k, v in rep.get("invariants", {}).items() if not v]
+    if failed:
+        return f"{rep['file']}: invariant {', '.join(failed)} failed (the output was written; see the report)"
+    gap = rep["after"].get("gap_max")
+    if max_gap is not None and gap is not None and gap > max_gap:
+        return f"{rep['file']}: gap after {gap:.3g} exceeds --max-gap {max_gap:g}"
+    if max_deviation is not None and rep["bound_after_max"] > max_deviation:
+        return (f"{rep['file']}: deviation bound {rep['bound_after_max']:.3g} exceeds "
+                f"--max-deviation {max_deviation:g}")
+    return None
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,10 +1,13 @@
-"""``watertight convert``: read -> stage 1 (untrim) -> verify -> build -> write, with a report.
+"""``watertight convert``: read -> stage 1 (untrim) -> verify -> stage 2 (substitute) -> build ->
+write -> verify the written file, with a before/after report.
 
-Only stage 1 exists so far (issue #5 builds stage 2, the shared boundaries). The output of stage 1
-is one open shell of untrimmed Bezier faces, one per patch: each face keeps its input face's shape
-within the reported bound, but neighbours do not share edges yet.
+``stage="untrim"`` stops after stage 1 and writes one open shell of untrimmed Bezier faces that keep
+their input faces' shapes but share no edges. The full conversion substitutes one shared curve per
+boundary (``substitute``), joins the patches per input shell into shells and solids
+(``occ.assemble``), writes atomically, then reads the file back and measures invariants I1-I4 on it
+with the project's own code (``--fast`` skips the re-read).
 
-Nothing is written when the verify step fails: a wrong model is worse than no model.
+Nothing is written when the stage-1 verify fails: a wrong model is worse than no model.
 """
 
 from __future__ import annotations
@@ -18,15 +21,15 @@ from . import __version__
 from .errors import WatertightError
 from .tolerances import Tolerances
 
-STAGES = ("untrim",)
+STAGES = ("full", "untrim")
 
 
 class VerifyError(WatertightError):
     """The converted model failed the own verify step; nothing was written."""
 
 
-def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untrim",
-                 progress=None, overwrite: bool = True) -> dict:
+def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full",
+                 progress=None, overwrite: bool = True, fast: bool = False) -> dict:
     """Convert one file; returns its report. ``dst`` None: convert and verify, write nothing.
 
     ``progress(stage_name, total)`` returns a callable advanced by one per item (faces for untrim
@@ -51,7 +54,9 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untri
 
     t = time.perf_counter()
     tick = progress("untrim", len(model.faces)) if progress else None
-    result = untrim(model, tol, tick)
+    # the full conversion leaves half the tolerance to stage 2: substitution moves an approximated
+    # patch's boundary by up to its approximation error plus the input's gap
+    result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel) if stage == "full" else tol, tick)
     times["untrim"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -67,6 +72,10 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "untri
         more = len(check.problems) - 1
         raise VerifyError(f"{src}: verify failed, nothing written: {first}"
                           + (f" (and {more} more)" if more else ""))
+    if stage == "full":
+        from .stage2 import finish
+
+        return finish(ins, result, report, tol, src, dst, progress, overwrite, fast)
     if dst is not None:
         t = time.perf_counter()
         tick = progress("build", len(result.patches)) if progress else None

@@ -64,6 +64,7 @@ class FaceSubstitution:
     inner_shared: int = 0  # inner sides made bitwise equal with their partner
     inner_unpaired: int = 0  # inner sides without a partner of the same extent (T-junctions)
     inner_reparam: int = 0  # shared inner sides left as they are: same line, other parameterization
+    inner_t: int = 0  # inner sides made subdivisions of a neighbour's longer side (T-vertices)
     elevated: int = 0  # patches whose degree was raised to take a shared curve
     corners_moved: int = 0  # corners moved onto a shared curve in patches with no side there
     problems: list[str] = field(default_factory=list)
@@ -590,6 +591,7 @@ def _share_inner(fr, info, fs: FaceSubstitution, tol: Tolerances, diagonal: floa
     done = set()
     eps = 1e-9
     patches = fr.patches
+    lonely = []
     for k, (i, name, _, _) in enumerate(items):
         if k in done:
             continue
@@ -601,9 +603,7 @@ def _share_inner(fr, info, fs: FaceSubstitution, tol: Tolerances, diagonal: floa
         partners = [j for j in partners if j not in done]
         done.add(k)
         if not partners:
-            # the same extent reversed or not at all: a side with a T-vertex on it (or a side on
-            # the face's boundary that no edge claims)
-            fs.inner_unpaired += 1
+            lonely.append(k)  # a side with a T-vertex on it, or one of the sides that meet there
             continue
         j = partners[0]
         done.add(j)
@@ -613,6 +613,104 @@ def _share_inner(fr, info, fs: FaceSubstitution, tol: Tolerances, diagonal: floa
             row = row[::-1]
         _copy_row(dst, items[j][1], row, src.rational, fs, tol, diagonal)
         fs.inner_shared += 1
+    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal)
+
+
+def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubstitution, tol: Tolerances,
+                   diagonal: float) -> None:
+    """Sides that meet a longer side of a neighbour at a T-vertex become subdivisions of that side,
+    so the two stay on one curve (its corners at the T-vertex are computed once)."""
+    if not lonely:
+        return
+    seg = fwd[lonely]
+    a, b = seg[:, :2], seg[:, 2:]
+    length = np.linalg.norm(b - a, axis=1)
+    eps = 1e-7
+    used = set()
+    groups: dict[int, list] = {}
+    for n, k in enumerate(lonely):
+        # containers: longer lonely sides of another patch whose segment holds both ends of k
+        d = b - a
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ta = np.einsum("ij,ij->i", a[n] - a, d) / np.maximum(length ** 2, 1e-300)
+            tb = np.einsum("ij,ij->i", b[n] - a, d) / np.maximum(length ** 2, 1e-300)
+        da = np.linalg.norm(a + ta[:, None] * d - a[n], axis=1)
+        db = np.linalg.norm(a + tb[:, None] * d - b[n], axis=1)
+        ok = ((length > length[n] * (1 + 1e-12)) & (da <= eps) & (db <= eps)
+              & (np.minimum(ta, tb) >= -eps) & (np.maximum(ta, tb) <= 1 + eps))
+        ok &= np.array([items[j][0] != items[k][0] for j in lonely])
+        cands = np.flatnonzero(ok)
+        if not len(cands):
+            continue
+        j = lonely[int(cands[np.argmax(length[cands])])]
+        li, lname = items[j][0], items[j][1]
+        long_p = fr.patches[li]
+        ua, ub = _side_param(long_p, lname, items[k][2]), _side_param(long_p, lname, items[k][3])
+        groups.setdefault(j, []).append((k, ua, ub))
+        used.update((k, j))
+    for j, shorts in groups.items():
+        li, lname = items[j][0], items[j][1]
+        long_p = fr.patches[li]
+        row = _row(long_p.ctrl, lname)
+        # T-vertices inside the long side: the short sides' corners there (moved onto an edge's
+        # curve where the T-vertex is on the face boundary) -- the long side is bent through them
+        ts, targets = [], []
+        for k, ua, ub in shorts:
+            sp = fr.patches[items[k][0]]
+            ends = _cartesian(_row(sp.ctrl, items[k][1]), sp.rational)[[0, -1]]
+            for tau, x in ((ua, ends[0]), (ub, ends[1])):
+                if 1e-12 < tau < 1 - 1e-12 and all(abs(tau - t0) > 1e-12 for t0 in ts):
+                    ts.append(tau)
+                    targets.append(x)
+        if ts:
+            bent = _through(row, long_p.rational, np.array(ts), np.array(targets))
+            if bent is not None:
+                _copy_row(long_p, lname, bent, long_p.rational, fs, tol, diagonal)
+                row = _row(long_p.ctrl, lname)
+        for k, ua, ub in shorts:
+            _copy_row(fr.patches[items[k][0]], items[k][1], curve_segment(row, ua, ub), long_p.rational,
+                      fs, tol, diagonal)
+            fs.inner_t += 1
+    fs.inner_unpaired += len(set(lonely) - used)
+
+
+def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarray) -> np.ndarray | None:
+    """The row plus the smallest polynomial correction x (1 - x) L(x) that makes it pass through
+    ``targets`` at ``ts`` (ends kept); None when it already does (to rounding)."""
+    h = basis(row.shape[0] - 1, ts) @ row
+    pts = h[:, :3] / h[:, 3:4] if rational else h
+    delta = targets - pts
+    scale = float(np.abs(_cartesian(row, rational)).max()) or 1.0
+    if np.abs(delta).max() <= 1e-15 * scale:
+        return None
+    n = len(ts)
+    # L in Bernstein form of degree n - 1 interpolating delta / (t (1 - t)); x (1 - x) = B_1^2 / 2
+    vals = delta / (ts * (1 - ts))[:, None]
+    L = np.linalg.solve(basis(n - 1, ts), vals) if n > 1 else vals
+    # x (1 - x) = B_1^2(x) / 2: Bernstein coefficients (0, 1/2, 0)
+    D = product(np.array([[0.0], [0.5], [0.0]]), L) if n > 1 else np.outer([0.0, 0.5, 0.0], L[0])
+    deg = max(row.shape[0] - 1, D.shape[0] - 1)
+    base = elevate_curve(row, deg - (row.shape[0] - 1)) if deg > row.shape[0] - 1 else row.copy()
+    D = elevate_curve(D, deg - (D.shape[0] - 1)) if deg > D.shape[0] - 1 else D
+    if rational:
+        base[:, :3] += D * base[:, 3:4]  # approximately: exact at the weights' values
+    else:
+        base += D
+    return base
+
+
+def _side_param(p: Patch, name: str, uv: np.ndarray) -> float:
+    """The parameter of a patch side at a point of the face's uv domain that lies on it."""
+    if name in ("left", "right"):  # rungs: straight in uv, linear in t
+        cm = cell_map(p, np.array([0.0 if name == "left" else 1.0]), np.array([0.0, 1.0]))[0]
+        d = cm[1] - cm[0]
+        return float(np.clip(np.dot(uv - cm[0], d) / max(np.dot(d, d), 1e-300), 0.0, 1.0))
+    side = p.bottom if name == "bottom" else p.top
+    ends = side.H[[0, -1], :2] / side.H[[0, -1], 2:3]
+    axis = 0 if abs(ends[1, 0] - ends[0, 0]) >= abs(ends[1, 1] - ends[0, 1]) else 1
+    if p.box:
+        return float(np.clip((uv[axis] - ends[0, axis]) / (ends[1, axis] - ends[0, axis]), 0.0, 1.0))
+    return _t_at(side.H, axis, float(uv[axis]))
 
 
 def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: FaceSubstitution,

@@ -111,3 +111,19 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str) -> tuple[T
                     info["open_solid_shells"] += 1
                 builder.Add(out, shell)
     return out, info
+
+
+def volume(shape) -> float:
+    """Summed volume of the shape's solids (kernel integration)."""
+    total = 0.0
+    ex = TopExp_Explorer(shape, TopAbs_SOLID)
+    while ex.More():
+        total += _volume(ex.Current())
+        ex.Next()
+    return total
+
+
+def is_valid(shape) -> bool:
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    return bool(BRepCheck_Analyzer(shape).IsValid())

@@ -1,0 +1,168 @@
+"""The second half of ``watertight convert``: substitute, build, write, verify the written file.
+
+Invariants measured on the written file (read back with the same code as ``watertight report``):
+
+- I1: every face is a single-span (Bezier) surface bounded by its parameter rectangle;
+- I2: the largest gap over all edges (the edge's curve against each face's surface(pcurve), and
+  the two faces' boundaries against each other) is at most ``watertight_rel`` x diagonal;
+- I3: no free edges where the input had none, and no more than the input had; solids stay solids;
+- I4: per face, the deviation bound (stage 1 + substitution) is at most the tolerance plus the
+  input's largest gap on the face's edges.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+
+from .tolerances import Tolerances
+
+
+def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None, progress,
+           overwrite: bool, fast: bool) -> dict:
+    from .occ.assemble import input_groups, is_valid, join, volume
+    from .occ.build import patch_face
+    from .occ.io import write_shape
+    from .substitute import substitute
+
+    model = ins.model
+    times = report["timings"]
+    t = time.perf_counter()
+    tick = progress("substitute", len(model.faces)) if progress else None
+    sub = substitute(model, result, tol, tick)
+    times["substitute"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    tick = progress("build", len(result.patches)) if progress else None
+    groups = []
+    for faces, solid in input_groups(ins.shape):
+        built = []
+        for i in faces:
+            for p in result.faces[i].patches:
+                built.append(patch_face(p.ctrl, p.rational, model.faces[i].reversed))
+                if tick is not None:
+                    tick(1)
+        groups.append((built, solid))
+    shape, joined = join(groups, model.diagonal, src)
+    valid = is_valid(shape)
+    times["build"] = time.perf_counter() - t
+
+    input_gap = {}
+    for g in ins.gaps:
+        for f in g.faces:
+            input_gap[f] = max(input_gap.get(f, 0.0), g.gap)
+    allowed_base = tol.approx_rel * model.diagonal
+    faces = []
+    for fr, fs, frep in zip(result.faces, sub.faces, report["faces"], strict=True):
+        # per patch: its stage-1 bound plus its own substitution move (Patch.bound carries both)
+        face = model.faces[fr.face]
+        bound = max((p.bound for p in fr.patches), default=0.0) + face.approximation + fr.closure
+        allowed = allowed_base + input_gap.get(fr.face, 0.0)
+        frep.update({
+            "substitution_move": fs.moved,
+            "substitution_move_is_estimate": fs.estimated,
+            "bound_after": bound,
+            "bound_allowed": allowed,
+            "t_sides": fs.inner_unpaired,
+            "problems": frep["problems"] + fs.problems,
+        })
+        faces.append((bound, allowed, fs))
+    i4_fail = [f for f, (b, a, _) in zip(result.faces, faces, strict=True) if b > a]
+    problems = [p for _, _, fs in faces for p in fs.problems]
+    degrees = [max(p.degrees) for p in result.patches]
+    vol_in = volume(ins.shape) if model.solids else None
+    vol_out = volume(shape) if joined["solids"] else None
+
+    report.update({
+        "stage": "full",
+        "degree": {
+            "max": max(degrees, default=0),
+            "median": sorted(degrees)[len(degrees) // 2] if degrees else 0,
+            "histogram": {str(k): v for k, v in sorted(Counter(degrees).items())},
+        },
+        "shared_curves": dict(Counter(sub.curves.values())),
+        "t_junctions": sub.t_vertices + sum(fs.inner_unpaired for fs in sub.faces),
+        "t_vertices_on_edges": sub.t_vertices,
+        "substitution_move_max": sub.moved,
+        "bound_after_max": max((b for b, _, _ in faces), default=0.0),
+        "before": {
+            "gap_max": max((g.gap for g in ins.gaps), default=0.0),
+            "free_edges": sum(1 for e in model.edges if not e.degenerate and e.uses == 1),
+            "solids": model.solids,
+            "shells": model.shells,
+            "volume": vol_in,
+        },
+        "after": {
+            "faces": len(result.patches),
+            "shells": joined["shells"],
+            "solids": joined["solids"],
+            "free_edges_after_join": joined["free_edges"],
+            "valid": valid,
+            "volume": vol_out,
+            "volume_change_rel": (abs(vol_out - vol_in) / abs(vol_in)
+                                  if vol_in and vol_out is not None else None),
+        },
+        "problems": problems,
+    })
+    invariants = {"I4": not i4_fail and not problems, "valid": valid}
+    if dst is not None:
+        t = time.perf_counter()
+        write_shape(shape, dst, overwrite=overwrite)
+        times["write"] = time.perf_counter() - t
+        if not fast:
+            t = time.perf_counter()
+            invariants.update(_verify_written(dst, report, tol, model))
+            times["verify_written"] = time.perf_counter() - t
+    report["invariants"] = invariants
+    report["ok"] = all(invariants.values())
+    report["timings"] = times
+    return report
+
+
+def _verify_written(dst: str, report: dict, tol: Tolerances, model_in) -> dict:
+    """Read the written file back and measure I1-I3 on it."""
+    from .inspect import inspect, trimmed
+
+    out = inspect(dst, tol)
+    m = out.model
+    gap = max((g.gap for g in out.gaps), default=0.0)
+    free = sum(1 for e in m.edges if not e.degenerate and e.uses == 1)
+    bezier = sum(1 for f in m.faces if f.surface.is_bezier and not trimmed(f))
+    before_free = report["before"]["free_edges"]
+    report["after"].update({
+        "read_back": True,
+        "faces": len(m.faces),
+        "untrimmed_bezier_faces": bezier,
+        "gap_max": gap,
+        "gap_max_relative": gap / m.diagonal if m.diagonal else None,
+        "free_edges": free,
+        "solids": m.solids,
+        "shells": m.shells,
+    })
+    return {
+        "I1": bezier == len(m.faces),
+        "I2": gap <= tol.watertight_rel * model_in.diagonal,
+        "I3": (free == 0 if before_free == 0 else free <= before_free) and m.solids >= model_in.solids,
+    }
+
+
+def format_full_table(rep: dict) -> str:
+    d = rep["diagonal"]
+    b, a = rep["before"], rep["after"]
+    inv = rep.get("invariants", {})
+    lines = [
+        f"{rep['file']} -> {rep['output'] or '(not written)'}",
+        f"  faces in {rep['faces_in']}, patches out {rep['patches_out']}, degree max {rep['degree']['max']} "
+        f"median {rep['degree']['median']:g}, T-junctions {rep['t_junctions']}",
+        f"  gap: before {b['gap_max']:.3g} -> after "
+        + (f"{a['gap_max']:.3g} ({a['gap_max'] / d:.2g} of the diagonal)" if "gap_max" in a
+           else "(not read back)"),
+        f"  free edges: before {b['free_edges']} -> after {a.get('free_edges', a['free_edges_after_join'])}; "
+        f"solids {b['solids']} -> {a['solids']}; valid {'yes' if a['valid'] else 'NO'}"
+        + (f"; volume change {a['volume_change_rel']:.2g}" if a.get("volume_change_rel") is not None else ""),
+        f"  deviation bound: {rep['bound_after_max']:.3g} (stage 1 {rep['bound_max']:.3g} + substitution "
+        f"{rep['substitution_move_max']:.3g}); shared curves {rep['shared_curves']}",
+        "  invariants: " + ", ".join(f"{k} {'ok' if v else 'FAILED'}" for k, v in inv.items()),
+        "  time: " + ", ".join(f"{k} {v:.1f}s" for k, v in rep["timings"].items()),
+    ]
+    return "\n".join(lines)
