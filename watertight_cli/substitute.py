@@ -444,17 +444,22 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 lo, hi = sorted((ref.wa, ref.wb))
                 users.setdefault(ref.edge, []).append((lo, hi, row, size))
         infos.append(info)
+    snap = _snap_params(model, users, result.plan, tol)
+    for info in infos:
+        for refs, _ in info:
+            for ref in refs.values():
+                if ref is not None and not ref.pole:
+                    ref.wa, ref.wb = snap[ref.edge].get(ref.wa, ref.wa), snap[ref.edge].get(ref.wb, ref.wb)
+    users = {e: [(snap[e].get(lo, lo), snap[e].get(hi, hi), r, size) for lo, hi, r, size in uses]
+             for e, uses in users.items()}
     for e, uses in users.items():
         curves.decide(e, uses)
     faces: list[FaceSubstitution] = []
     for fr, info in zip(result.faces, infos, strict=True):  # pass 2: substitute
         fs = FaceSubstitution(fr.face)
         faces.append(fs)
-        moved_uv: list[np.ndarray] = []
-        moved_xyz: list[np.ndarray] = []
-        info_cm = {id(p): {c: cm[c] for c in ((0, 0), (1, 0), (0, 1), (1, 1))}
-                   for p, (_, cm) in zip(fr.patches, info, strict=True)}
-        for p, (refs, _) in zip(fr.patches, info, strict=True):
+        moved: dict[tuple[int, tuple[int, int]], np.ndarray] = {}
+        for pi, (p, (refs, _)) in enumerate(zip(fr.patches, info, strict=True)):
             rows: dict[str, np.ndarray] = {}
             corners: dict[tuple[int, int], tuple] = {}
             for name, ref in refs.items():
@@ -477,15 +482,41 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
             if corners:
                 _apply(p, rows, corners, curves, fs, tol)
                 for c, key in corners.items():
-                    moved_uv.append(info_cm[id(p)][c])
-                    moved_xyz.append(curves.corner(key))
-        _move_corners(fr, info, moved_uv, moved_xyz, fs)
-        _share_inner(fr, info, fs, tol, model.diagonal)
+                    moved[(pi, c)] = curves.corner(key)
+        labels = _unify_corners(fr, info, moved, fs)
+        _share_inner(fr, info, labels, fs, tol, model.diagonal)
         if progress is not None:
             progress(1)
     uses_per_edge = {e.index: e.uses for e in model.edges}
     t_vertices = sum(1 for k, n in corner_uses.items() if n < 2 * uses_per_edge[k[1]])
     return Substitution(faces, used, t_vertices, curves.straddles)
+
+
+def _snap_params(model: Model, users: dict, plan: dict, tol: Tolerances) -> dict[int, dict[float, float]]:
+    """Per edge, side-end parameters that stand less than a sliver apart (in 3D, through the curve's
+    speed) mapped onto one value: the plan's, or the edge's end, where one is among them. Stage 1
+    can end two neighbouring cells' sides a sliver apart on the same edge (a plan cut next to a
+    slab line); one parameter makes them one corner."""
+    out: dict[int, dict[float, float]] = {}
+    sliver = tol.sliver_rel * model.diagonal
+    for e, uses in users.items():
+        edge = model.edges[e]
+        anchors = set(float(x) for x in plan.get(e, ())) | {float(edge.first), float(edge.last)}
+        vals = np.array(sorted({float(w) for lo, hi, _, _ in uses for w in (lo, hi)} | anchors))
+        pts = edge.curve.evaluate(vals)
+        close = np.linalg.norm(np.diff(pts, axis=0), axis=1) <= sliver
+        m: dict[float, float] = {}
+        group: list[float] = [float(vals[0])]
+        for w, joined in zip(vals[1:], close, strict=True):
+            if not joined:
+                rep = next((x for x in group if x in anchors), group[0])
+                m.update({x: rep for x in group})
+                group = []
+            group.append(float(w))
+        rep = next((x for x in group if x in anchors), group[0])
+        m.update({x: rep for x in group})
+        out[e] = m
+    return out
 
 
 def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves,
@@ -542,77 +573,93 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     p.bound += moved
 
 
-def _move_corners(fr, info, uv: list, xyz: list, fs: FaceSubstitution) -> None:
-    """Corners that moved onto a shared curve move in every patch of the face that has a corner
-    there, also in patches that touch the boundary only at that corner."""
-    if not uv:
-        return
-    pts = np.array(uv)
-    span = np.ptp(np.concatenate([pts, np.array([cm.reshape(-1, 2).min(0) for _, cm in info]),
-                                  np.array([cm.reshape(-1, 2).max(0) for _, cm in info])]), axis=0)
-    span[span == 0] = 1.0
-    tree = cKDTree(pts / span)
+def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution) -> dict:
+    """One point per corner of the face's decomposition: patch corners closer in uv than the face's
+    line thresholds (``FaceResult.eps``, where stage 1 merged slab lines) are one corner. Its value
+    is the shared curve's point where some patch put one there (the boundary), else the first
+    patch's. Every patch gets that value at that corner; returns (patch, corner) -> corner id."""
+    keys = [(i, c) for i in range(len(fr.patches)) for c in ((0, 0), (1, 0), (0, 1), (1, 1))]
+    if not keys:
+        return {}
+    uv = np.array([info[i][1][c] for i, c in keys])
+    ueps, veps = fr.eps if fr.eps is not None else (0.0, 0.0)
+    scale = np.array([max(ueps, 1e-12 * max(np.ptp(uv[:, 0]), 1e-300)),
+                      max(veps, 1e-12 * max(np.ptp(uv[:, 1]), 1e-300))])
+    tree = cKDTree(uv / scale)
+    parent = list(range(len(keys)))
+
+    def find(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a, b in tree.query_pairs(2.0, p=np.inf):
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    value: dict[int, np.ndarray] = {}
+    for n, k in enumerate(keys):
+        if k in moved:
+            value.setdefault(find(n), moved[k])
     ii = {0: 0, 1: -1}
-    for p, (_, cm) in zip(fr.patches, info, strict=True):
-        for (s, t) in ((0, 0), (1, 0), (0, 1), (1, 1)):
-            d, j = tree.query(cm[s, t] / span)
-            if d > 1e-9:
-                continue
-            x = xyz[j]
-            H = p.ctrl
-            cur = H[ii[s], ii[t], :3] / H[ii[s], ii[t], 3] if p.rational else H[ii[s], ii[t]]
-            if np.array_equal(cur, x):
-                continue
-            move = float(np.linalg.norm(cur - x))
-            H = H.copy()
-            H[ii[s], ii[t], :3] = x * (H[ii[s], ii[t], 3] if p.rational else 1.0)
-            p.ctrl = H
-            p.bound += move
-            fs.moved = max(fs.moved, move)
-            fs.corners_moved += 1
+    labels = {}
+    for n, (i, (s, t)) in enumerate(keys):
+        root = find(n)
+        labels[(i, (s, t))] = root
+        p = fr.patches[i]
+        H = p.ctrl
+        cur = H[ii[s], ii[t], :3] / H[ii[s], ii[t], 3] if p.rational else H[ii[s], ii[t]]
+        x = value.setdefault(root, cur.copy())
+        if np.array_equal(cur, x):
+            continue
+        move = float(np.linalg.norm(cur - x))
+        H = H.copy()
+        H[ii[s], ii[t], :3] = x * (H[ii[s], ii[t], 3] if p.rational else 1.0)
+        p.ctrl = H
+        p.bound += move
+        fs.moved = max(fs.moved, move)
+        fs.corners_moved += 1
+    return labels
 
 
-def _share_inner(fr, info, fs: FaceSubstitution, tol: Tolerances, diagonal: float) -> None:
-    """Make inner sides that two patches share bitwise equal (the first patch's row wins)."""
+def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, diagonal: float) -> None:
+    """Make inner sides that two patches share bitwise equal (the first patch's row wins): two
+    sides are shared when they join the same two corners (see ``_unify_corners``)."""
     items = []  # (patch index, side name, start uv, end uv)
+    ends = []
     for i, (refs, cm) in enumerate(info):
         for name, (_, _, (c0, c1)) in SIDES.items():
             if refs[name] is None:
                 items.append((i, name, cm[c0], cm[c1]))
+                ends.append((labels[(i, c0)], labels[(i, c1)]))
     if not items:
         return
     pts = np.array([[*a, *b] for _, _, a, b in items])
     span = np.ptp(pts.reshape(-1, 2), axis=0)
     span[span == 0] = 1.0
-    scale = np.tile(1.0 / span, 2)
-    fwd = pts * scale
-    rev = np.concatenate([pts[:, 2:], pts[:, :2]], axis=1) * scale
-    tree = cKDTree(fwd)
-    done = set()
-    eps = 1e-9
+    fwd = pts * np.tile(1.0 / span, 2)
+    by_ends: dict[tuple[int, int], list[int]] = {}
+    for k, (a, b) in enumerate(ends):
+        if a != b:  # a collapsed side has nothing to share
+            by_ends.setdefault((min(a, b), max(a, b)), []).append(k)
     patches = fr.patches
     lonely = []
-    for k, (i, name, _, _) in enumerate(items):
-        if k in done:
+    for ks in by_ends.values():
+        owners = {items[k][0] for k in ks}
+        if len(owners) < 2:
+            lonely.extend(ks)  # a side with a T-vertex on it, or one of the sides that meet there
             continue
-        partners = [j for j in tree.query_ball_point(fwd[k], eps) if j != k and items[j][0] != i]
-        flip = False
-        if not partners:
-            partners = [j for j in tree.query_ball_point(rev[k], eps) if j != k and items[j][0] != i]
-            flip = True
-        partners = [j for j in partners if j not in done]
-        done.add(k)
-        if not partners:
-            lonely.append(k)  # a side with a T-vertex on it, or one of the sides that meet there
-            continue
-        j = partners[0]
-        done.add(j)
-        src, dst = patches[i], patches[items[j][0]]
-        row = _row(src.ctrl, name)
-        if flip:
-            row = row[::-1]
-        _copy_row(dst, items[j][1], row, src.rational, fs, tol, diagonal)
-        fs.inner_shared += 1
+        m = ks[0]
+        src = patches[items[m][0]]
+        for k in ks[1:]:
+            if items[k][0] == items[m][0]:
+                continue
+            row = _row(src.ctrl, items[m][1])
+            if ends[k] != ends[m]:
+                row = row[::-1]
+            _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal)
+            fs.inner_shared += 1
     _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal)
 
 

@@ -326,7 +326,7 @@ class _FaceGeometry:
         return self.span_speed[i0:i1 + 1, j0:j1 + 1].reshape(-1, 2).max(axis=0)
 
 
-def edge_plan(model: Model, geoms: list[_FaceGeometry]) -> dict[int, np.ndarray]:
+def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0) -> dict[int, np.ndarray]:
     """Every non-degenerate edge's sorted split parameters, agreed by all its faces (see module doc)."""
     raw: dict[int, list[float]] = {}
     for face, g in zip(model.faces, geoms, strict=True):
@@ -341,7 +341,22 @@ def edge_plan(model: Model, geoms: list[_FaceGeometry]) -> dict[int, np.ndarray]
             vals = vals + list(_interior_breaks(edge.curve.knots, edge.curve.degree))
         eps = 1e-11 * max(edge.last - edge.first, 1e-300)
         plan[e] = _merge(vals, edge.first, edge.last, eps)
+        if edge.curve is not None and len(plan[e]) and sliver > 0:
+            plan[e] = _thin_plan(plan[e], edge, sliver)
     return plan
+
+
+def _thin_plan(params: np.ndarray, edge, sliver: float) -> np.ndarray:
+    """Drop split parameters that stand less than a sliver (in 3D, along the edge's curve) from the
+    previous one or from the edge's ends: two faces computing the same crossing on their own
+    surfaces need the same cut, and two cuts that close make a cell narrower than a sliver."""
+    pts = edge.curve.evaluate(np.concatenate([[edge.first], params, [edge.last]]))
+    keep, last = [], pts[0]
+    for w, x in zip(params, pts[1:-1], strict=True):
+        if np.linalg.norm(x - last) > sliver and np.linalg.norm(x - pts[-1]) > sliver:
+            keep.append(w)
+            last = x
+    return np.array(keep)
 
 
 # ---------------------------------------------------------------------------------------- slabs/cells
@@ -1007,7 +1022,7 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     """Stage 1 on a whole model. ``progress`` (optional) is called once per face."""
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
-    plan = edge_plan(model, geoms)
+    plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal)
     faces = []
     for face, g in zip(model.faces, geoms, strict=True):
         try:

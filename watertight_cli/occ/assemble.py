@@ -64,9 +64,12 @@ def _faces(shape, fmap) -> list[int]:
     return out
 
 
-def _volume(shape) -> float:
+def _volume(shape, eps: float | None = None) -> float:
     props = GProp_GProps()
-    BRepGProp.VolumeProperties_s(shape, props)
+    if eps is None:
+        BRepGProp.VolumeProperties_s(shape, props)
+    else:
+        BRepGProp.VolumeProperties_s(shape, props, eps)
     return float(props.Mass())
 
 
@@ -113,12 +116,15 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str) -> tuple[T
     return out, info
 
 
-def volume(shape) -> float:
-    """Summed volume of the shape's solids (kernel integration)."""
+def volume(shape, adaptive: bool = False) -> float:
+    """Summed volume of the shape's solids (kernel integration). ``adaptive`` integrates to a relative
+    precision of 1e-9: on trimmed input faces the kernel's default rule is off by up to 0.6 % (a
+    loft minus a cylinder: 24251.8 against 24386.2), while on untrimmed Bezier patches both agree
+    to 1e-13."""
     total = 0.0
     ex = TopExp_Explorer(shape, TopAbs_SOLID)
     while ex.More():
-        total += _volume(ex.Current())
+        total += _volume(ex.Current(), 1e-9 if adaptive else None)
         ex.Next()
     return total
 
