@@ -171,12 +171,34 @@ def test_convert_is_deterministic(tmp_path):
     assert a.read_bytes() == b.read_bytes()  # I6: same input and options, same bytes
 
 
-def test_convert_full_stage_is_refused_honestly(tmp_path):
+def test_convert_full_writes_a_watertight_solid(tmp_path):
     out = tmp_path / "o.step"
-    result = run("convert", str(fixture_path("sphere.step")), str(out))
-    assert result.exit_code == EXIT_USAGE
-    assert "stage 2" in one_line_error(result, "not built yet")
-    assert not out.exists()
+    result = run("convert", "--json", "-q", str(fixture_path("two_solids.step")), str(out))
+    assert result.exit_code == EXIT_OK, result.output
+    rep = json.loads(result.stdout)
+    assert rep["stage"] == "full" and rep["ok"] is True
+    assert rep["invariants"] == {"I1": True, "I2": True, "I3": True, "I4": True, "valid": True}
+    assert rep["after"]["solids"] == rep["before"]["solids"] == 2
+    assert rep["after"]["free_edges"] == 0
+    assert rep["after"]["gap_max"] <= 1e-12 * rep["diagonal"]
+    assert rep["after"]["untrimmed_bezier_faces"] == rep["patches_out"]
+    assert set(rep["shared_curves"]) <= {"3d curve", "3d curve, polynomial fit", "pole"}
+
+
+def test_convert_gates_exit_3_and_keep_the_file(tmp_path):
+    out = tmp_path / "o.step"
+    result = run("convert", "-q", "--max-deviation", "1e-30", str(fixture_path("sphere.step")), str(out))
+    assert result.exit_code == EXIT_GATE
+    assert "--max-deviation" in one_line_error(result, "sphere.step")
+    assert out.exists()
+
+
+def test_convert_fast_skips_the_read_back(tmp_path):
+    out = tmp_path / "o.step"
+    result = run("convert", "--json", "-q", "--fast", str(fixture_path("sphere.step")), str(out))
+    assert result.exit_code == EXIT_OK, result.output
+    rep = json.loads(result.stdout)
+    assert "read_back" not in rep["after"] and "I2" not in rep["invariants"]
 
 
 def test_convert_bad_input_leaves_no_output(tmp_path):
@@ -216,7 +238,8 @@ def test_convert_max_degree_option_is_respected(tmp_path):
 def test_convert_help_explains_stages():
     result = run("convert", "--help")
     assert result.exit_code == 0
-    for word in ("--stage", "untrim", "--max-degree", "--tolerance", "atomically"):
+    for word in ("--stage", "untrim", "--max-degree", "--tolerance", "atomically", "--fast", "--max-gap",
+                 "--max-deviation", "shared curve"):
         assert word in result.output
 
 

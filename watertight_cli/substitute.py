@@ -535,8 +535,8 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
             if ks:
                 d = max(H.shape[axis] - 1, ks[0].shape[0] - 1)
                 f = _weight_factor(ks[0][:, 3], tol.max_degree - d)
-                if len(f) > 1:
-                    H = product(H, f, axis=axis)
+                if len(f) > 1:  # the factor runs along ``axis``: move that axis first
+                    H = np.swapaxes(product(np.swapaxes(H, 0, axis), f, axis=0), 0, axis)
         rows = {k: _homog(K) for k, K in rows.items()}
     elif rational:
         rows = {k: _homog(K) for k, K in rows.items()}

@@ -1,0 +1,185 @@
+"""Stage 2: shared curves substituted into patch boundaries (core helpers and whole fixtures)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from watertight_cli.core.bernstein import product
+from watertight_cli.core.bezier import curve_eval, curve_segment
+from watertight_cli.substitute import _divide, _through, _weight_factor, substitute
+from watertight_cli.tolerances import Tolerances
+
+from .conftest import fixture_path
+
+coef = st.floats(min_value=0.2, max_value=3.0, allow_nan=False)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(coef, min_size=2, max_size=6), st.lists(coef, min_size=1, max_size=6))
+def test_divide_recovers_a_common_factor(kappa, g):
+    """A row whose weights are K's weights times a polynomial g gives g back (the exact case)."""
+    kappa, g = np.array(kappa), np.array(g)
+    omega = product(kappa, g)
+    got = _divide(omega, kappa)
+    assert got is not None
+    assert np.allclose(product(kappa, got), omega, rtol=0, atol=1e-10 * np.abs(omega).max())
+
+
+def test_divide_refuses_what_has_no_factor():
+    omega = np.array([1.0, 0.2, 1.0, 0.2, 1.0])  # degree 4, not a multiple of 1 + t
+    assert _divide(omega, np.array([1.0, 2.0])) is None
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(coef, coef, coef), min_size=3, max_size=8),
+       st.lists(st.floats(min_value=0.05, max_value=0.95), min_size=1, max_size=3, unique=True),
+       st.floats(min_value=-1e-3, max_value=1e-3))
+def test_through_bends_a_side_through_its_t_vertices(ctrl, ts, d):
+    """The bent row passes through the targets at the T-parameters and keeps its ends; its
+    subdivisions there end exactly on the targets (what the short sides take)."""
+    row = np.array(ctrl)
+    ts = np.array(sorted(ts))
+    if np.min(np.diff(np.concatenate([[0.0], ts, [1.0]]))) < 0.05:
+        return
+    targets = curve_eval(row, ts) + d
+    bent = _through(row, False, ts, targets)
+    if bent is None:
+        assert abs(d) < 1e-12
+        return
+    assert np.allclose(curve_eval(bent, ts), targets, atol=1e-9)
+    assert np.allclose(bent[[0, -1]], row[[0, -1]], atol=1e-12)
+    left = curve_segment(bent, 0.0, ts[0])
+    assert np.allclose(left[-1], targets[0], atol=1e-9)
+
+
+def test_weight_factor_fits_the_budget():
+    kappa = np.array([1.0, 0.9, 0.85, 0.9, 1.0])
+    assert np.array_equal(_weight_factor(kappa, 4), kappa)
+    f = _weight_factor(kappa, 2)
+    assert len(f) == 3 and f[0] == pytest.approx(1.0)
+    assert len(_weight_factor(kappa, 0)) == 1
+
+
+def _boundary_rows(result, model):
+    from watertight_cli.substitute import SIDES, _refs
+
+    out = []
+    for fr in result.faces:
+        for p in fr.patches:
+            refs, _ = _refs(p, fr.iso_pieces, fr.eps)
+            for name, ref in refs.items():
+                if ref is not None and not ref.pole:
+                    out.append((p, name, ref))
+    return out, SIDES
+
+
+@pytest.mark.parametrize("name", ["loft_minus_cylinder.step", "sphere_cut_box.step", "two_solids.step"])
+def test_boundary_sides_lie_on_the_shared_curve(name):
+    """After substitution every boundary side is the edge's curve (plus its end correction) on its
+    parameter interval, whichever face it belongs to: neighbours meet to rounding (I2)."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.untrim import patch_points, untrim
+
+    tol = Tolerances()
+    ins = inspect(str(fixture_path(name)), tol)
+    model = ins.model
+    result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel))
+    rows, _ = _boundary_rows(result, model)
+    sub = substitute(model, result, tol)
+    assert not [p for f in sub.faces for p in f.problems]
+    g = np.linspace(0.0, 1.0, 9)
+    worst = 0.0
+    for p, side, ref in rows:
+        s, t = {"bottom": (g, [0.0]), "top": (g, [1.0]), "left": ([0.0], g), "right": ([1.0], g)}[side]
+        pts = patch_points(p, np.array(s), np.array(t)).reshape(-1, 3)
+        edge = model.edges[ref.edge]
+        w = ref.wa + g * (ref.wb - ref.wa)
+        lam = (w - edge.first) / (edge.last - edge.first)
+        ends = edge.curve.evaluate(np.array([edge.first, edge.last]))
+        v = model.vertices[list(edge.vertices)]
+        c = edge.curve.evaluate(w) + np.outer(1 - lam, v[0] - ends[0]) + np.outer(lam, v[1] - ends[1])
+        worst = max(worst, float(np.linalg.norm(pts - c, axis=1).max()))
+    # sides were snapped to shared parameters a sliver apart at most (Tolerances.sliver_rel)
+    assert worst <= 2 * tol.sliver_rel * model.diagonal
+    # and the stage-1 bound plus the substitution stays within the tolerance plus the input gap
+    gap = max(gp.gap for gp in ins.gaps)
+    assert sub.moved <= tol.approx_rel * model.diagonal + gap
+
+
+@pytest.mark.parametrize("name", ["loft_minus_cylinder.step", "sphere_cut_box.step", "two_solids.step",
+                                  "sphere.step", "torus.step", "bspline_boolean.step", "open_sheet.step",
+                                  "loft_minus_cylinder.igs", "open_sheet_144.igs"])
+def test_fixture_converts_with_invariants(tmp_path, name):
+    """The whole pipeline on a fixture: written, read back, I1-I4 and kernel validity hold."""
+    from watertight_cli.convert import convert_file
+
+    rep = convert_file(str(fixture_path(name)), str(tmp_path / "o.step"), Tolerances())
+    expected = {"I1": True, "I2": True, "I3": True, "I4": True, "valid": True}
+    assert rep["invariants"] == expected, rep["invariants"]
+    assert rep["after"]["solids"] == rep["before"]["solids"]
+    if rep["before"]["free_edges"] == 0:
+        assert rep["after"]["free_edges"] == 0
+    if rep["after"]["volume_change_rel"] is not None:
+        assert rep["after"]["volume_change_rel"] <= max(1e-6, 20 * rep["before"]["gap_max"] / rep["diagonal"])
+
+
+@pytest.mark.xfail(strict=True, reason="known: a few sides of these fixtures stay up to 4e-7 apart "
+                                       "(filleted_freeform: rational fillet rows; plate_with_holes: a "
+                                       "sliver corner at a vertex) -- issue #5 is open")
+@pytest.mark.parametrize("name", ["filleted_freeform.step", "plate_with_holes.step"])
+def test_fixture_known_failures(tmp_path, name):
+    from watertight_cli.convert import convert_file
+
+    rep = convert_file(str(fixture_path(name)), str(tmp_path / "o.step"), Tolerances())
+    assert all(rep["invariants"].values())
+
+
+def test_converting_twice_changes_nothing(tmp_path):
+    """Idempotence: an output converted again comes back within 1e-12 of the diagonal."""
+    from watertight_cli.convert import convert_file
+    from watertight_cli.inspect import inspect
+
+    once, twice = tmp_path / "1.step", tmp_path / "2.step"
+    convert_file(str(fixture_path("torus.step")), str(once), Tolerances())
+    rep = convert_file(str(once), str(twice), Tolerances())
+    assert rep["ok"]
+    a, b = inspect(str(once), Tolerances()).model, inspect(str(twice), Tolerances()).model
+    assert len(a.faces) == len(b.faces)
+    pa = np.concatenate([f.surface.poles.reshape(-1, 3) for f in a.faces])
+    pb = np.concatenate([f.surface.poles.reshape(-1, 3) for f in b.faces])
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(pb).query(pa)
+    assert d.max() <= 1e-12 * a.diagonal
+
+
+def test_polynomial_patch_takes_a_rational_row_in_either_direction():
+    """A polynomial patch that takes a rational K along t (a rung) becomes rational (its net times
+    K's weight function along t, which failed with an axis error before) and its row is K exactly."""
+    from watertight_cli.substitute import _apply, _Curves, FaceSubstitution
+    from watertight_cli.untrim import Patch, Side
+
+    rng = np.random.default_rng(3)
+    ctrl = rng.normal(size=(4, 3, 3))
+    side = Side(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]]), True)
+    p = Patch(0, ctrl.copy(), False, side, side)
+    K = np.array([[0.0, 0.0, 0.0, 1.0], [0.3, 0.9, 0.0, 0.8], [1.0, 1.0, 0.0, 1.0]])
+    K[1, :3] *= K[1, 3]
+    K[:, :3] += ctrl[0, [0, 0, 0]] * K[:, 3:]  # keep the corners where they are
+    K[-1, :3] = ctrl[0, -1] * K[-1, 3]
+    fs = FaceSubstitution(0)
+
+    class NoCurves(_Curves):
+        def __init__(self):
+            pass
+
+    _apply(p, {"left": K}, {}, NoCurves(), fs, Tolerances())
+    assert p.rational and not fs.problems
+    s = np.linspace(0, 1, 7)
+    from watertight_cli.core.bezier import rational_curve_eval
+
+    row = p.ctrl[0, :]
+    assert np.allclose(rational_curve_eval(row, s), rational_curve_eval(K, s), atol=1e-12)
