@@ -159,7 +159,7 @@ def test_converting_twice_changes_nothing(tmp_path):
 def test_polynomial_patch_takes_a_rational_row_in_either_direction():
     """A polynomial patch that takes a rational K along t (a rung) becomes rational (its net times
     K's weight function along t, which failed with an axis error before) and its row is K exactly."""
-    from watertight_cli.substitute import _apply, _Curves, FaceSubstitution
+    from watertight_cli.substitute import FaceSubstitution, _apply, _Curves
     from watertight_cli.untrim import Patch, Side
 
     rng = np.random.default_rng(3)
