@@ -52,6 +52,7 @@ SIDES = {
 }
 _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
+_ELEVATE = 25  # elevation used to tighten control-net bounds of a patch's change
 _SAMPLES = 17  # grid per direction for the sampled change of patches whose weights changed
 
 
@@ -329,13 +330,36 @@ def _cartesian(H: np.ndarray, rational: bool) -> np.ndarray:
     return H[..., :3] / H[..., 3:4] if rational else H
 
 
+def _elevation_for(net: np.ndarray, axis: int) -> int:
+    """How far to elevate a net along ``axis``: to twice its degree, within OCCT's limit."""
+    return max(1, min(net.shape[axis] - 1, 25))
+
+
+def _elevated_bound(diff: np.ndarray) -> float:
+    """max |D(s, t)| of a Bezier difference net, bounded on the net elevated to about twice its
+    degrees (the control points of an elevated net converge to the values; the convex hull keeps
+    it a bound)."""
+    hull = float(np.linalg.norm(diff, axis=-1).max())
+    if hull == 0.0:
+        return 0.0
+    up = elevate_surface(diff, min(_ELEVATE, _elevation_for(diff, 0)), min(_ELEVATE, _elevation_for(diff, 1)))
+    return min(hull, float(np.linalg.norm(up, axis=-1).max()))
+
+
 def _change(old: np.ndarray, new: np.ndarray, rational: bool) -> tuple[float, bool]:
     """Bound of max |new - old| over the patch (both the same surface type and degree): the largest
     control-point move when the weights are equal (convex hull), else sampled and flagged."""
     if not rational:
-        return float(np.linalg.norm(new - old, axis=-1).max()), False
+        return _elevated_bound(new - old), False
     if np.allclose(old[..., 3], new[..., 3], rtol=1e-12, atol=0.0):
-        return float(np.linalg.norm(_cartesian(new, True) - _cartesian(old, True), axis=-1).max()), False
+        hull = float(np.linalg.norm(_cartesian(new, True) - _cartesian(old, True), axis=-1).max())
+        # N / W with N = sum w dP B and W = sum w B: |N| and W bounded on elevated nets
+        w = new[..., 3]
+        num = (_cartesian(new, True) - _cartesian(old, True)) * w[..., None]
+        r = _ELEVATE
+        wmin = float(elevate_surface(w[..., None], min(r, _elevation_for(w, 0)), min(r, _elevation_for(w, 1))).min())
+        tight = _elevated_bound(num) / wmin if wmin > 0 else np.inf
+        return min(hull, tight), False
     s = np.linspace(0.0, 1.0, _SAMPLES)
     s = np.unique(np.concatenate([s, s[:3] * 0.1, 1 - s[:3] * 0.1]))
 
