@@ -356,8 +356,8 @@ def _change(old: np.ndarray, new: np.ndarray, rational: bool) -> tuple[float, bo
         # N / W with N = sum w dP B and W = sum w B: |N| and W bounded on elevated nets
         w = new[..., 3]
         num = (_cartesian(new, True) - _cartesian(old, True)) * w[..., None]
-        r = _ELEVATE
-        wmin = float(elevate_surface(w[..., None], min(r, _elevation_for(w, 0)), min(r, _elevation_for(w, 1))).min())
+        ru, rv = min(_ELEVATE, _elevation_for(w, 0)), min(_ELEVATE, _elevation_for(w, 1))
+        wmin = float(elevate_surface(w[..., None], ru, rv).min())
         tight = _elevated_bound(num) / wmin if wmin > 0 else np.inf
         return min(hull, tight), False
     s = np.linspace(0.0, 1.0, _SAMPLES)
