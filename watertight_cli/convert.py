@@ -39,7 +39,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     from .inspect import inspect
     from .occ.build import input_face_areas, open_shell, patch_face
     from .occ.io import write_shape
-    from .untrim import untrim
+    from .untrim import UntrimError, untrim, untrim_face
     from .verify import verify_untrim
 
     if stage not in STAGES:
@@ -57,6 +57,17 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     # the full conversion leaves half the tolerance to stage 2: substitution moves an approximated
     # patch's boundary by up to its approximation error plus the input's gap
     result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel) if stage == "full" else tol, tick)
+    if stage == "full":
+        # a face that half the tolerance cannot decompose (a fold that only a coarser side
+        # unfolds) gets the whole tolerance; the read-back check says if its total stays within
+        for i, fr in enumerate(result.faces):
+            if fr.problems:
+                try:
+                    retry = untrim_face(model.faces[fr.face], model, result.plan, tol)
+                except UntrimError:
+                    continue
+                if not retry.problems:
+                    result.faces[i] = retry
     times["untrim"] = time.perf_counter() - t
 
     t = time.perf_counter()
