@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.spatial import cKDTree
 
 from .core.approx import fit_curve
@@ -39,7 +38,7 @@ from .core.bspline import to_bezier
 from .core.reduce import reduce_curve
 from .model import Model
 from .tolerances import Tolerances
-from .untrim import Patch, UntrimResult, cell_map
+from .untrim import Patch, UntrimResult, _t_at_u, cell_map
 
 __all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
 
@@ -113,6 +112,7 @@ class _Curves:
         self.fit_error: dict[int, float] = {}
         self._moves: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._fits: dict[int, list] = {}  # edge -> per span (polynomial net, sampled error)
+        self._corners: dict[tuple, np.ndarray] = {}
         self.straddles = 0
 
     def spans(self, e: int):
@@ -141,9 +141,10 @@ class _Curves:
     def corner(self, key) -> np.ndarray:
         if key[0] == "v":
             return self.model.vertices[key[1]]
-        br, sp, rat = self.spans(key[1])
-        h = self.exact(key[1], key[2], key[2])[0]
-        return h[:3] / h[3] if rat else h
+        if key not in self._corners:
+            h = self.exact(key[1], key[2], key[2])[0]
+            self._corners[key] = h[:3] / h[3] if self.rational(key[1]) else h
+        return self._corners[key]
 
     def exact(self, e: int, lo: float, hi: float) -> np.ndarray:
         """C' on [lo, hi] (lo <= hi), homogeneous when rational: C plus the affine-in-w correction
@@ -198,7 +199,8 @@ class _Curves:
         cost = max(f[1] for f in fits) + max(
             (_mismatch(r, _homog(self.segment(e, lo, hi)), self.max_degree) * size
              for lo, hi, r, size in uses if r.shape[1] == 4), default=0.0)
-        self._k.clear()
+        for key in [k for k in self._k if k[0] == e]:  # segments cut from the fits while costing
+            del self._k[key]
         if cost < exact:
             self.fit_error[e] = max(f[1] for f in fits)
         else:
@@ -278,22 +280,6 @@ def _mismatch(row: np.ndarray, K: np.ndarray, max_degree: int) -> float:
     return float(np.abs(r - line).max())
 
 
-def _t_at(H: np.ndarray, axis: int, x: float) -> float:
-    """Parameter where a monotone planar homogeneous piece reaches coordinate ``axis`` = x (clamped)."""
-    def f(t):
-        h = basis(H.shape[0] - 1, np.atleast_1d(t)) @ H
-        return float(h[0, axis] / h[0, 2] - x)
-
-    a, b = f(0.0), f(1.0)
-    if a == 0.0:
-        return 0.0
-    if b == 0.0:
-        return 1.0
-    if a * b > 0:
-        return 0.0 if abs(a) < abs(b) else 1.0
-    return brentq(f, 0.0, 1.0, xtol=1e-15, rtol=1e-15)
-
-
 def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) -> _Ref | None:
     """The edge interval of a rung from uv ``a`` to ``b`` when it lies on a u-iso boundary piece."""
     for p in pieces:
@@ -305,7 +291,7 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) ->
             continue
         if p.degenerate:
             return _Ref(p.edge, p.w0, p.w1, pole=True)
-        ws = [p.w0 + _t_at(p.H, 1, float(x[1])) * (p.w1 - p.w0) for x in (a, b)]
+        ws = [p.w0 + _t_at_u(p.H, float(x[1]), axis=1) * (p.w1 - p.w0) for x in (a, b)]
         # snap to the piece's ends, so corners at plan parameters get the plan's floats
         ws = [p.w0 if abs(x[1] - uv[0, 1]) <= eps[1] else p.w1 if abs(x[1] - uv[1, 1]) <= eps[1] else w
               for x, w in zip((a, b), ws, strict=True)]
@@ -412,8 +398,8 @@ def _degrees_for(H: np.ndarray, rows: dict[str, np.ndarray]) -> tuple[int, int]:
     return ds, dt
 
 
-def _put(H: np.ndarray, name: str, K: np.ndarray) -> bool:
-    """Write K into the row ``name`` of H at H's degree; False when the row's weights changed.
+def _put(H: np.ndarray, name: str, K: np.ndarray) -> None:
+    """Write K into the row ``name`` of H at H's degree (in place).
 
     In a rational H the row keeps its weights where they are K's times a common factor (see
     ``_divide``); otherwise K's weights are matched to the row's corner weights by a scale and a
@@ -427,7 +413,7 @@ def _put(H: np.ndarray, name: str, K: np.ndarray) -> bool:
         if g is not None:
             Kg = product(K, g) if len(g) > 1 else K * g[0]
             H[idx] = np.concatenate([Kg[:, :3] / Kg[:, 3:4] * row[:, 3:4], row[:, 3:4]], axis=1)
-            return True
+            return
     if K.shape[0] - 1 < d:
         K = elevate_curve(K, d - (K.shape[0] - 1))
     if H.shape[-1] == 4 and d > 0:
@@ -435,11 +421,7 @@ def _put(H: np.ndarray, name: str, K: np.ndarray) -> bool:
         rho = ((row[-1, 3] / row[0, 3]) * (K[0, 3] / K[-1, 3])) ** (1.0 / d)
         K = K * (rho ** np.arange(d + 1))[:, None]
         K = K * (row[0, 3] / K[0, 3])
-        same = bool(np.allclose(K[:, 3], row[:, 3], rtol=1e-12, atol=0.0))
-        H[idx] = K
-        return same
     H[idx] = K
-    return True
 
 
 def _homog(K: np.ndarray) -> np.ndarray:
@@ -836,7 +818,7 @@ def _side_param(p: Patch, name: str, uv: np.ndarray) -> float:
     axis = 0 if abs(ends[1, 0] - ends[0, 0]) >= abs(ends[1, 1] - ends[0, 1]) else 1
     if p.box:
         return float(np.clip((uv[axis] - ends[0, axis]) / (ends[1, axis] - ends[0, axis]), 0.0, 1.0))
-    return _t_at(side.H, axis, float(uv[axis]))
+    return _t_at_u(side.H, float(uv[axis]), axis=axis)
 
 
 def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: FaceSubstitution,

@@ -387,9 +387,10 @@ def _split(p: _Piece, t: float) -> tuple[_Piece, _Piece]:
     )
 
 
-def _t_at_u(H: np.ndarray, u: float) -> float:
-    """Parameter of a u-monotone piece at u (clamped to the piece)."""
-    f = _coord_fn(H, 0, u)
+def _t_at_u(H: np.ndarray, u: float, axis: int = 0) -> float:
+    """Parameter of a piece monotone in coordinate ``axis`` (u by default) where it reaches u
+    (clamped to the piece)."""
+    f = _coord_fn(H, axis, u)
     a, b = float(f(0.0)[0]), float(f(1.0)[0])
     if a == 0.0:
         return 0.0
