@@ -684,18 +684,25 @@ class _FaceContext:
 
     def _follow(self, E: Side, bot: Side, top: Side, P, frame) -> Patch | None:
         """A cell between two v-iso lines where one side is an edge whose parameter is not affine in
-        u: phi(s, t) = (u_E(s), (1 - t) c0 + t c1) keeps the edge's parameter on that side at
-        bidegree (m k, n), against (m + n) k for the ruled map. None when over the budget."""
+        u: phi(s, t) = ((1 - t) u_B(s) + t u_T(s), (1 - t) c0 + t c1), where the edge side keeps its
+        own parameter and the other side runs linearly in u, as a sub-box's side does. Neighbours
+        across that other side (boxes, or cells following another edge) then meet it at the same
+        parameter, so stage 2 can share it exactly. u_s > 0 and v_t > 0 everywhere: no fold.
+        Bidegree (m k, m + n), against (m + n) k for the general ruled map; None over the budget."""
         U0, du, V0, dv = frame
         k = E.H.shape[0] - 1
-        if not _polynomial(E.H) or self.m * k > self.max_degree:
+        if not _polynomial(E.H) or max(self.m * k, self.m + self.n) > self.max_degree:
             return None
         c0, c1 = bot.H[0, 1] / bot.H[0, 2], top.H[0, 1] / top.H[0, 2]
-        u = (E.H[:, 0] - U0) / du
-        ctrl = compose(P, np.stack([u, u], 1), np.array([[(c0 - V0) / dv, (c1 - V0) / dv]]))
-        follow = lambda side, c: side if side is E else Side(  # noqa: E731
-            np.stack([E.H[:, 0], np.full(k + 1, c), np.ones(k + 1)], 1), True)
-        return Patch(self.face.index, ctrl, self.rational, follow(bot, c0), follow(top, c1))
+        other = top if E is bot else bot
+        lin = np.linspace(other.H[0, 0] / other.H[0, 2], other.H[-1, 0] / other.H[-1, 2], k + 1)
+        ue, ul = (E.H[:, 0] - U0) / du, (lin - U0) / du
+        U = np.stack([ue, ul] if E is bot else [ul, ue], 1)
+        ctrl = compose(P, U, np.array([[(c0 - V0) / dv, (c1 - V0) / dv]]))
+        line = Side(np.array([[other.H[0, 0] / other.H[0, 2], other.H[0, 1] / other.H[0, 2], 1.0],
+                              [other.H[-1, 0] / other.H[-1, 2], other.H[-1, 1] / other.H[-1, 2], 1.0]]),
+                    True, other.edge, other.w0, other.w1, other.degenerate, other.pcurve)
+        return Patch(self.face.index, ctrl, self.rational, E if E is bot else line, E if E is top else line)
 
     def _halve(self, ua, ubb, bot, top, fr, depth):
         um = 0.5 * (ua + ubb)
