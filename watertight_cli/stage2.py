@@ -19,10 +19,11 @@ from .tolerances import Tolerances
 
 
 def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None, progress,
-           overwrite: bool, fast: bool) -> dict:
+           overwrite: bool, fast: bool, keep: dict | None = None) -> dict:
     from .occ.assemble import input_groups, is_valid, join, volume
     from .occ.build import patch_face
     from .occ.io import write_shape
+    from .report import edge_gap_rows
     from .substitute import substitute
 
     model = ins.model
@@ -91,6 +92,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "solids": model.solids,
             "shells": model.shells,
             "volume": vol_in,
+            "edge_gaps": edge_gap_rows(ins.gaps),
         },
         "after": {
             "faces": len(result.patches),
@@ -111,7 +113,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
         times["write"] = time.perf_counter() - t
         if not fast:
             t = time.perf_counter()
-            invariants.update(_verify_written(dst, report, tol, model))
+            invariants.update(_verify_written(dst, report, tol, model, keep))
             times["verify_written"] = time.perf_counter() - t
     report["invariants"] = invariants
     report["ok"] = all(invariants.values())
@@ -119,11 +121,14 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     return report
 
 
-def _verify_written(dst: str, report: dict, tol: Tolerances, model_in) -> dict:
+def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dict | None = None) -> dict:
     """Read the written file back and measure I1-I3 on it."""
     from .inspect import inspect, trimmed
+    from .report import edge_gap_rows
 
     out = inspect(dst, tol)
+    if keep is not None:
+        keep["read_back"] = out
     m = out.model
     gap = max((g.gap for g in out.gaps), default=0.0)
     free = sum(1 for e in m.edges if not e.degenerate and e.uses == 1)
@@ -141,6 +146,7 @@ def _verify_written(dst: str, report: dict, tol: Tolerances, model_in) -> dict:
         "free_boundary_length": free_len,
         "solids": m.solids,
         "shells": m.shells,
+        "edge_gaps": edge_gap_rows(out.gaps),
     })
     return {
         "I1": bezier == len(m.faces),
