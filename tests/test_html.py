@@ -190,3 +190,15 @@ def test_corpus_convert_page(tmp_path):
     text = page.read_text(encoding="utf-8")
     assert len(IMG.findall(text)) >= 4
     assert_self_contained(text)
+
+
+@pytest.mark.parametrize("option", ["--fast", "--stage=untrim"])
+def test_convert_page_without_read_back(tmp_path, option):
+    page = tmp_path / "c.html"
+    result = run("convert", str(fixture_path("sphere.step")), str(tmp_path / "o.step"), option, "-q",
+                 "--html", str(page))
+    assert result.exit_code == EXIT_OK, result.output
+    text = page.read_text(encoding="utf-8")
+    assert len(IMG.findall(text)) >= 4
+    assert "not read back" in text
+    assert_self_contained(text)

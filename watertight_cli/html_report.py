@@ -212,44 +212,68 @@ def face_colours(groups: np.ndarray, uniform: bool) -> np.ndarray:
     return np.concatenate([0.2 + 0.8 * rgb, np.ones((len(groups), 1))], axis=1)
 
 
+CLOSE_UP = 0.08  # half-size of the close-up box around the worst edge, relative to the model's extent
+
+
+def _prepare(triangles, groups, edges, values, lines, max_triangles: int, notes: list[str] | None):
+    """Budgeted arrays for one panel; ``notes`` (when given) says what was left out."""
+    tris, grp = decimate(triangles, groups, max_triangles)
+    if notes is not None and len(tris) < len(triangles):
+        notes.append(f"surface decimated from {len(triangles)} to {len(tris)} triangles")
+    if len(tris):
+        flat = tris.reshape(-1, 3)
+        tris, grp = refine(tris, grp, float((flat.max(axis=0) - flat.min(axis=0)).max()) / 30, max_triangles)
+    kept, values = limit_segments(edges, values, MAX_EDGE_SEGMENTS)
+    if notes is not None and len(kept) < len(edges):
+        notes.append(f"{len(kept)} of {len(edges)} edge segments drawn (largest gaps first)")
+    few, _ = limit_segments(lines, None, MAX_LINE_SEGMENTS)
+    if notes is not None and len(few) < len(lines):
+        notes.append(f"{len(few)} of {len(lines)} patch-boundary segments drawn (a random subset)")
+    return tris, grp, kept, values, few
+
+
+def _inside(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Per item of (n, k, 3): all k points within the box."""
+    return np.all((points >= lo) & (points <= hi), axis=(1, 2)) if len(points) else np.zeros(0, dtype=bool)
+
+
 def render(scene: Scene, title: str, norm_range: tuple[float, float] | None, per_face: bool,
            views=VIEWS, max_triangles: int = MAX_TRIANGLES) -> tuple[str, list[str]]:
-    """The scene in several views side by side, as a PNG data URI, and the caption notes."""
+    """The scene in several views side by side, plus a close-up around the worst edge's worst
+    sample (marker 1) when there are marks; a PNG data URI and the caption notes."""
     plt = _pyplot()
     from matplotlib.colors import LogNorm
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
     notes = list(scene.notes)
-    tris, groups = decimate(scene.triangles, scene.groups, max_triangles)
-    if len(tris) < len(scene.triangles):
-        notes.append(f"surface decimated from {len(scene.triangles)} to {len(tris)} triangles")
-    if len(tris):
-        flat = tris.reshape(-1, 3)
-        size = float((flat.max(axis=0) - flat.min(axis=0)).max())
-        tris, groups = refine(tris, groups, size / 30, max_triangles)
-    edges, values = limit_segments(scene.edges, scene.edge_values, MAX_EDGE_SEGMENTS)
-    if len(edges) < len(scene.edges):
-        notes.append(f"{len(edges)} of {len(scene.edges)} edge segments drawn (largest gaps first)")
-    lines, _ = limit_segments(scene.lines, None, MAX_LINE_SEGMENTS)
-    if len(lines) < len(scene.lines):
-        notes.append(f"{len(lines)} of {len(scene.lines)} patch-boundary segments drawn (a random subset)")
-
-    allpts = [a.reshape(-1, 3) for a in (tris, edges, lines) if len(a)]
+    whole = _prepare(scene.triangles, scene.groups, scene.edges, scene.edge_values, scene.lines,
+                     max_triangles, notes)
+    allpts = [a.reshape(-1, 3) for a in (whole[0], whole[2], whole[4]) if len(a)]
     pts = np.concatenate(allpts) if allpts else np.zeros((1, 3))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    ext = np.maximum(hi - lo, max(float((hi - lo).max()), 1e-9) * 0.05)
-    mid, half = (lo + hi) / 2, ext / 2
-    base = face_colours(groups, uniform=not per_face)
+    size = max(float((hi - lo).max()), 1e-9)
+    panels = [(name, elev, azim, whole, lo, hi) for name, elev, azim in views]
+    if len(scene.marks):
+        c, r = scene.marks[0], CLOSE_UP * size
+        blo, bhi = c - r, c + r
+        tri_in = _inside(scene.triangles, blo, bhi)
+        edge_in = _inside(scene.edges, blo, bhi)
+        line_in = _inside(scene.lines, blo, bhi)
+        part = _prepare(scene.triangles[tri_in], scene.groups[tri_in], scene.edges[edge_in],
+                        None if scene.edge_values is None else scene.edge_values[edge_in],
+                        scene.lines[line_in], max_triangles // 2, None)
+        panels.append((f"close-up at 1 (box {2 * r:.3g} mm)", views[0][1], views[0][2], part, blo, bhi))
     norm = LogNorm(*norm_range) if norm_range else None
     cmap = plt.get_cmap("plasma")
 
-    fig = plt.figure(figsize=(4.6 * len(views) + 0.9, 4.6))
-    fig.subplots_adjust(left=0.0, right=0.94, bottom=0.0, top=0.88, wspace=0.0)
-    for k, (name, elev, azim) in enumerate(views):
-        ax = fig.add_subplot(1, len(views), k + 1, projection="3d", computed_zorder=False)
+    fig = plt.figure(figsize=(4.6 * len(panels) + 0.9, 4.6))
+    fig.subplots_adjust(left=0.0, right=0.95, bottom=0.0, top=0.88, wspace=0.02)
+    for k, (name, elev, azim, (tris, groups, edges, values, lines), plo, phi) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), k + 1, projection="3d", computed_zorder=False)
         ax.view_init(elev=elev, azim=azim)
         if len(tris):
-            shaded = _shade(tris, base, elev, azim)  # edges in the face colour: no seams between triangles
+            shaded = _shade(tris, face_colours(groups, uniform=not per_face), elev, azim)
+            # edges in the face colour: no seams between triangles
             ax.add_collection3d(Poly3DCollection(tris, facecolors=shaded, edgecolors=shaded, linewidths=0.25,
                                                  zorder=1))
         if len(lines):
@@ -262,20 +286,23 @@ def render(scene: Scene, title: str, norm_range: tuple[float, float] | None, per
                 colours = (0.15, 0.15, 0.15, 0.9)
             ax.add_collection3d(Line3DCollection(edges, colors=colours, linewidths=1.6, zorder=3))
         for i, p in enumerate(scene.marks):
-            ax.scatter([p[0]], [p[1]], [p[2]], s=40, marker="o", facecolors="none", edgecolors="red",
-                       linewidths=1.4, zorder=4)
-            ax.text(p[0], p[1], p[2], f" {i + 1}", color="red", fontsize=8, zorder=5)
-        ax.set_xlim(mid[0] - half[0], mid[0] + half[0])
-        ax.set_ylim(mid[1] - half[1], mid[1] + half[1])
-        ax.set_zlim(mid[2] - half[2], mid[2] + half[2])
-        ax.set_box_aspect(tuple(ext), zoom=1.3)  # equal scale on the three axes
+            if np.all((p >= plo) & (p <= phi)):
+                ax.scatter([p[0]], [p[1]], [p[2]], s=40, marker="o", facecolors="none", edgecolors="red",
+                           linewidths=1.4, zorder=4)
+                ax.text(p[0], p[1], p[2], f" {i + 1}", color="red", fontsize=8, zorder=5)
+        ext = np.maximum(phi - plo, max(float((phi - plo).max()), 1e-12) * 0.05)
+        mid = (plo + phi) / 2
+        ax.set_xlim(mid[0] - ext[0] / 2, mid[0] + ext[0] / 2)
+        ax.set_ylim(mid[1] - ext[1] / 2, mid[1] + ext[1] / 2)
+        ax.set_zlim(mid[2] - ext[2] / 2, mid[2] + ext[2] / 2)
+        # equal scale on the three axes; a long part fills the panel at zoom 1 already
+        ax.set_box_aspect(tuple(ext), zoom=1.2 if ext.max() < 2 * np.median(ext) else 1.0)
         ax.set_axis_off()
         ax.set_title(name, fontsize=9)
-    if norm is not None and values is not None:
+    if norm is not None and scene.edge_values is not None:
         from matplotlib.cm import ScalarMappable
 
-        sm = ScalarMappable(norm=norm, cmap=cmap)
-        cb = fig.colorbar(sm, ax=fig.axes, fraction=0.025, pad=0.01)
+        cb = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=fig.axes, fraction=0.02, pad=0.01)
         cb.set_label("edge gap (mm, log scale)", fontsize=8)
     fig.suptitle(title, fontsize=10)
     return _data_uri(fig, "png", dpi=90), notes
