@@ -202,3 +202,14 @@ def test_convert_page_without_read_back(tmp_path, option):
     assert len(IMG.findall(text)) >= 4
     assert "not read back" in text
     assert_self_contained(text)
+
+
+def test_clip_segments_to_box():
+    from watertight_cli.html_report import clip_segments
+
+    segs = np.array([[[-1, 0.5, 0.5], [2, 0.5, 0.5]],   # crosses the box
+                     [[0.2, 0.2, 0.2], [0.4, 0.4, 0.4]],  # inside
+                     [[2, 2, 2], [3, 3, 3]]], dtype=float)  # outside
+    out, vals = clip_segments(segs, np.array([1.0, 2.0, 3.0]), np.zeros(3), np.ones(3))
+    assert list(vals) == [1.0, 2.0]
+    assert np.allclose(out[0], [[0, 0.5, 0.5], [1, 0.5, 0.5]]) and np.allclose(out[1], segs[1])

@@ -81,44 +81,56 @@ def _figure(uri: str, caption: str, alt: str) -> str:
 # ------------------------------------------------------------------------------------ decimation
 
 
+def _cluster(pts: np.ndarray, lo: np.ndarray, cell: float):
+    """Cell id per point, the triangles' cell ids, and the indices of the surviving triangles."""
+    keys = np.floor((pts - lo) / cell).astype(np.int64)
+    span = keys.max(axis=0) + 1
+    cid = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, inv = np.unique(cid, return_inverse=True)
+    t = inv.reshape(-1, 3)
+    ok = np.flatnonzero((t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2]))
+    _, first = np.unique(np.sort(t[ok], axis=1), axis=0, return_index=True)
+    return inv, t, ok[np.sort(first)]
+
+
 def decimate(triangles: np.ndarray, groups: np.ndarray, max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
     """At most ``max_triangles`` triangles, by vertex clustering on a uniform grid.
 
     Vertices in one grid cell merge into their mean; triangles that collapse, and repeats, drop.
-    The surface keeps its extent and has no holes bigger than a cell; each kept triangle keeps
-    its group.
+    The finest grid within the budget is searched by bisection on the cell size. The surface
+    keeps its extent and has no holes bigger than a cell; each kept triangle keeps its group.
     """
     if len(triangles) <= max_triangles:
         return triangles, groups
     pts = triangles.reshape(-1, 3)
     lo = pts.min(axis=0)
     ext = float((pts.max(axis=0) - lo).max()) or 1.0
-    n = max(4, int(np.sqrt(max_triangles / 2)))
-    while True:
-        keys = np.minimum(np.floor((pts - lo) / (ext / n)).astype(np.int64), n)
-        cid = (keys[:, 0] * (n + 1) + keys[:, 1]) * (n + 1) + keys[:, 2]
-        _, inv = np.unique(cid, return_inverse=True)
-        t = inv.reshape(-1, 3)
-        ok = np.flatnonzero((t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2]))
-        _, first = np.unique(np.sort(t[ok], axis=1), axis=0, return_index=True)
-        if len(first) <= max_triangles or n <= 4:
+    fine, coarse = ext / 4000, ext / 2  # cell sizes: too many triangles / within budget
+    best = _cluster(pts, lo, coarse)
+    for _ in range(14):
+        cell = np.sqrt(fine * coarse)
+        trial = _cluster(pts, lo, cell)
+        if len(trial[2]) <= max_triangles:
+            coarse, best = cell, trial
+        else:
+            fine = cell
+        if coarse / fine < 1.1:
             break
-        n = max(4, int(n / 1.3))
+    inv, t, keep = best
     centers = np.zeros((inv.max() + 1, 3))
     np.add.at(centers, inv, pts)
     centers /= np.bincount(inv)[:, None]
-    keep = ok[np.sort(first)]
     return centers[t[keep]], groups[keep]
 
 
 def refine(triangles: np.ndarray, groups: np.ndarray, max_len: float,
-           max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
+           max_triangles: int, rounds: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Split triangles longer than ``max_len`` into four, while the count stays within budget.
 
     matplotlib sorts polygons by their centroids' depth (painter's algorithm); a planar face of a
     few huge triangles is then drawn over or under its neighbours wholesale. Even sizes fix that.
     """
-    for _ in range(8):
+    for _ in range(rounds):
         longest = np.max(np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2), axis=1)
         big = longest > max_len
         if not big.any() or len(triangles) + 3 * int(big.sum()) > max_triangles:
@@ -180,8 +192,9 @@ def gap_histogram(series: list[tuple[str, np.ndarray, str]], marks: list[tuple[s
         if x > 0:
             ax.axvline(x, color=colour, linestyle="--", linewidth=1.2, label=f"{label} = {x:.3g}")
     ax.set_xscale("log")
+    ax.set_yscale("log")
     ax.set_xlabel("gap per edge (mm, log scale)")
-    ax.set_ylabel("edges")
+    ax.set_ylabel("edges (log)")
     ax.legend(fontsize=8, loc="upper left", frameon=False)
     ax.grid(True, which="major", alpha=0.25)
     return _data_uri(fig, "svg")
@@ -232,9 +245,37 @@ def _prepare(triangles, groups, edges, values, lines, max_triangles: int, notes:
     return tris, grp, kept, values, few
 
 
-def _inside(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Per item of (n, k, 3): all k points within the box."""
-    return np.all((points >= lo) & (points <= hi), axis=(1, 2)) if len(points) else np.zeros(0, dtype=bool)
+def clip_triangles(triangles: np.ndarray, groups: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_len: float,
+                   budget: int) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles near the box [lo, hi], split until shorter than ``max_len`` (within budget),
+    keeping at each split only the pieces that touch the box; finally those centred inside it."""
+    for _ in range(30):
+        touch = np.all(triangles.max(axis=1) >= lo, axis=1) & np.all(triangles.min(axis=1) <= hi, axis=1)
+        triangles, groups = triangles[touch], groups[touch]
+        longest = np.max(np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2), axis=1)
+        big = longest > max_len
+        if not big.any() or len(triangles) + 3 * int(big.sum()) > budget:
+            break
+        triangles, groups = refine(triangles, groups, max_len, len(triangles) + 3 * int(big.sum()), rounds=1)
+    centre = triangles.mean(axis=1)
+    inside = np.all((centre >= lo) & (centre <= hi), axis=1)
+    return triangles[inside], groups[inside]
+
+
+def clip_segments(segments: np.ndarray, values, lo: np.ndarray, hi: np.ndarray):
+    """The parts of the segments (n, 2, 3) inside the box [lo, hi] (Liang-Barsky), with their values."""
+    if not len(segments):
+        return segments, values
+    p, d = segments[:, 0], segments[:, 1] - segments[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo - p) / d, (hi - p) / d
+    t_in = np.where(d == 0, np.where((p >= lo) & (p <= hi), -np.inf, np.inf), np.minimum(ta, tb))
+    t_out = np.where(d == 0, np.where((p >= lo) & (p <= hi), np.inf, -np.inf), np.maximum(ta, tb))
+    t0 = np.maximum(t_in.max(axis=1), 0.0)
+    t1 = np.minimum(t_out.min(axis=1), 1.0)
+    keep = t0 < t1
+    out = np.stack([p[keep] + t0[keep, None] * d[keep], p[keep] + t1[keep, None] * d[keep]], axis=1)
+    return out, (None if values is None else values[keep])
 
 
 def render(scene: Scene, title: str, norm_range: tuple[float, float] | None, per_face: bool,
@@ -256,12 +297,10 @@ def render(scene: Scene, title: str, norm_range: tuple[float, float] | None, per
     if len(scene.marks):
         c, r = scene.marks[0], CLOSE_UP * size
         blo, bhi = c - r, c + r
-        tri_in = _inside(scene.triangles, blo, bhi)
-        edge_in = _inside(scene.edges, blo, bhi)
-        line_in = _inside(scene.lines, blo, bhi)
-        part = _prepare(scene.triangles[tri_in], scene.groups[tri_in], scene.edges[edge_in],
-                        None if scene.edge_values is None else scene.edge_values[edge_in],
-                        scene.lines[line_in], max_triangles // 2, None)
+        tris, groups = clip_triangles(scene.triangles, scene.groups, blo, bhi, r / 12, max_triangles // 2)
+        edges, values = clip_segments(scene.edges, scene.edge_values, blo, bhi)
+        lines, _ = clip_segments(scene.lines, None, blo, bhi)
+        part = _prepare(tris, groups, edges, values, lines, max_triangles // 2, None)
         panels.append((f"close-up at 1 (box {2 * r:.3g} mm)", views[0][1], views[0][2], part, blo, bhi))
     norm = LogNorm(*norm_range) if norm_range else None
     cmap = plt.get_cmap("plasma")
