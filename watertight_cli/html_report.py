@@ -192,9 +192,12 @@ def gap_histogram(series: list[tuple[str, np.ndarray, str]], marks: list[tuple[s
         if x > 0:
             ax.axvline(x, color=colour, linestyle="--", linewidth=1.2, label=f"{label} = {x:.3g}")
     ax.set_xscale("log")
-    ax.set_yscale("log")
     ax.set_xlabel("gap per edge (mm, log scale)")
-    ax.set_ylabel("edges (log)")
+    if max((len(v) for _, v, _ in series), default=0) > 50:  # a few edges stay visible beside many
+        ax.set_yscale("log")
+        ax.set_ylabel("edges (log)")
+    else:
+        ax.set_ylabel("edges")
     ax.legend(fontsize=8, loc="upper left", frameon=False)
     ax.grid(True, which="major", alpha=0.25)
     return _data_uri(fig, "svg")
@@ -420,6 +423,17 @@ def _num(x) -> str:
     return _e(x)
 
 
+def settings_rows(settings: dict) -> list[tuple[str, str]]:
+    """Command-line settings as shown: lists joined, flags as yes/no, unset as '-'."""
+    def show(v):
+        if isinstance(v, bool):
+            return "yes" if v else "no"
+        if isinstance(v, list | tuple):
+            return ", ".join(map(str, v))
+        return "-" if v is None else v
+    return [(k, show(v)) for k, v in settings.items()]
+
+
 def kv_table(rows: list[tuple[str, object]]) -> str:
     body = "".join(f'<tr><th class="l">{_e(k)}</th><td class="l">{_num(v)}</td></tr>' for k, v in rows)
     return f"<table>{body}</table>"
@@ -439,7 +453,7 @@ def worst_edges_table(edge_gaps: list[dict], rows: int = WORST_ROWS) -> str:
         body.append(
             f"<tr><td>{i + 1}</td><td>{g['edge']}</td><td>{_e(','.join(map(str, g['faces'])) or '-')}</td>"
             f"<td{cls}>{g['gap']:.3g}</td><td>{g['curve_to_face']:.3g}</td><td>{g['face_to_face']:.3g}</td>"
-            f"<td>{g['tolerance']:.3g}</td><td>{'-' if ratio is None else f'{ratio:.3g}'}</td>"
+            f"<td>{g['tolerance']:.3g}</td><td>{'-' if ratio is None else f'{ratio:.4g}'}</td>"
             f"<td>{x:.6g}</td><td>{y:.6g}</td><td>{z:.6g}</td></tr>")
     more = f"<p>{len(edge_gaps) - rows} more edges not listed.</p>" if len(edge_gaps) > rows else ""
     return f"<table>{head}{''.join(body)}</table>{more}"
@@ -488,7 +502,7 @@ def report_section(rep: dict, scene: Scene | None, settings: dict) -> str:
         parts += ["<h3>The model</h3>",
                   _picture(scene, "input model", gap_norm(gaps), False, EDGE_CAPTION)]
     parts += ["<h3>Settings and times</h3>",
-              kv_table([(k, v) for k, v in settings.items()]
+              kv_table(settings_rows(settings)
                        + [(f"time {k} (s)", v) for k, v in rep["timing_s"].items()])]
     return "".join(parts)
 
@@ -566,7 +580,7 @@ def convert_page(rep: dict, before: Scene | None, after: Scene | None, settings:
         items = "".join(f"<li>{_e(p)}</li>" for p in problems[:50])
         parts.append(f"<h3>Problems ({len(problems)})</h3><ul>{items}</ul>")
     parts += ["<h2>Settings and times</h2>",
-              kv_table([(k, v) for k, v in settings.items()]
+              kv_table(settings_rows(settings)
                        + [("tolerance used by stage 1 (mm)", rep["tolerance"]),
                           ("diagonal (mm)", rep["diagonal"])]
                        + [(f"time {k} (s)", v) for k, v in rep["timings"].items()])]
