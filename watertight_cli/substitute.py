@@ -51,6 +51,7 @@ SIDES = {
 }
 _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
+_T_MERGE = 1e-6  # T-vertex parameters on a long side this close, at one 3D point, are one vertex
 _ELEVATE = 25  # elevation used to tighten control-net bounds of a patch's change
 _SAMPLES = 17  # grid per direction for the sampled change of patches whose weights changed
 
@@ -142,8 +143,9 @@ class _Curves:
         if key[0] == "v":
             return self.model.vertices[key[1]]
         if key not in self._corners:
-            h = self.exact(key[1], key[2], key[2])[0]
-            self._corners[key] = h[:3] / h[3] if self.rational(key[1]) else h
+            # the point of the curve the segments are cut from: C', or its per-span fit
+            h = self.segment(key[1], key[2], key[2])[0]
+            self._corners[key] = h[:3] / h[3] if h.shape[0] == 4 else h
         return self._corners[key]
 
     def exact(self, e: int, lo: float, hi: float) -> np.ndarray:
@@ -269,8 +271,8 @@ def _mismatch(row: np.ndarray, K: np.ndarray, max_degree: int) -> float:
         w_row = _weight_factor(K[:, 3], max_degree - max(d, k))
     else:
         w_row = row[:, 3]
-        if _divide(w_row, K[:, 3] if K.shape[1] == 4 else np.ones(k + 1)) is not None:
-            return 0.0
+        if _divisible(w_row, K[:, 3] if K.shape[1] == 4 else np.ones(k + 1)) or d + k <= max_degree:
+            return 0.0  # divides, or the patch takes K's weights as a factor (``_common_weights``)
     n = max(len(w_row) - 1, k)
     w_row = elevate_curve(w_row[:, None], n - len(w_row) + 1)[:, 0]
     w = K[:, 3] if K.shape[1] == 4 else np.ones(k + 1)
@@ -424,6 +426,32 @@ def _put(H: np.ndarray, name: str, K: np.ndarray) -> None:
     H[idx] = K
 
 
+def _divisible(omega: np.ndarray, kappa: np.ndarray) -> bool:
+    """omega (a row's weights) is kappa times a polynomial, at omega's degree or K's."""
+    if len(omega) < len(kappa):
+        omega = elevate_curve(omega[:, None], len(kappa) - len(omega))[:, 0]
+    return _divide(omega, kappa) is not None
+
+
+def _common_weights(H: np.ndarray, rows: dict[str, np.ndarray], max_degree: int) -> np.ndarray:
+    """A rational net made ready to take its rows exactly, in K's own parameter: along each axis, H
+    is multiplied by the weight function kappa of every K whose row weights omega it does not
+    divide (a polynomial K counts as kappa = 1 at K's degree, which elevates H by that degree).
+    The surface is unchanged, and each row's weights become omega times kappa times the other
+    factors, so ``_put`` divides them exactly. Left as it is past ``max_degree`` (``_put`` then
+    matches corner weights and the caller refits)."""
+    for axis, names in ((0, ("bottom", "top")), (1, ("left", "right"))):
+        factors = [rows[n][:, 3] for n in names
+                   if n in rows and not _divisible(_row(H, n)[:, 3], rows[n][:, 3])]
+        if not factors or H.shape[axis] - 1 + sum(len(f) - 1 for f in factors) > max_degree:
+            continue
+        G = np.swapaxes(H, 0, axis)
+        for f in factors:
+            G = product(G, f / f[0], axis=0)
+        H = np.swapaxes(G, 0, axis)
+    return H
+
+
 def _homog(K: np.ndarray) -> np.ndarray:
     return K if K.shape[1] == 4 else np.concatenate([K, np.ones((K.shape[0], 1))], axis=1)
 
@@ -547,6 +575,8 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
         rows = {k: _homog(K) for k, K in rows.items()}
     elif rational:
         rows = {k: _homog(K) for k, K in rows.items()}
+    if rational:
+        H = _common_weights(H, rows, tol.max_degree)
     ds, dt = _degrees_for(H, rows)
     if max(ds, dt) > tol.max_degree:
         fs.problems.append(f"face {p.face}: a shared curve needs degree {max(ds, dt)} "
@@ -762,14 +792,25 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
         row = _row(long_p.ctrl, lname)
         # T-vertices inside the long side: the short sides' corners there (moved onto an edge's
         # curve where the T-vertex is on the face boundary) -- the long side is bent through them
+        # corners of two short sides at one point (the same corner) that stand a hair apart along
+        # the long side are one T-vertex: bending through both would need a stationary point
         ts, targets = [], []
+        cuts = []
         for k, ua, ub in shorts:
             sp = fr.patches[items[k][0]]
             ends = _cartesian(_row(sp.ctrl, items[k][1]), sp.rational)[[0, -1]]
+            cut = []
             for tau, x in ((ua, ends[0]), (ub, ends[1])):
-                if 1e-12 < tau < 1 - 1e-12 and all(abs(tau - t0) > 1e-12 for t0 in ts):
+                same = [n for n, t0 in enumerate(ts) if abs(tau - t0) <= _T_MERGE
+                        and np.linalg.norm(x - targets[n]) <= 1e-12 * diagonal]
+                if same:
+                    tau = ts[same[0]]
+                elif 1e-12 < tau < 1 - 1e-12:
                     ts.append(tau)
                     targets.append(x)
+                cut.append(tau)
+            cuts.append((k, *cut))
+        shorts = cuts
         if ts:
             bent = _through(row, long_p.rational, np.array(ts), np.array(targets))
             if bent is not None:
@@ -830,6 +871,8 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
         H = np.concatenate([H, np.ones(H.shape[:2] + (1,))], axis=-1)
     if rational and not row_rational:
         row = _homog(row)
+    if rational:  # the neighbour's row may carry weights this net does not have (``_common_weights``)
+        H = _common_weights(H, {name: row}, tol.max_degree)
     ds, dt = _degrees_for(H, {name: row})
     if max(ds, dt) > tol.max_degree:
         fs.problems.append(f"face {p.face}: a shared inner side needs degree {max(ds, dt)}")
@@ -837,10 +880,16 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
     ru, rv = ds - (H.shape[0] - 1), dt - (H.shape[1] - 1)
     if ru or rv:
         H = elevate_surface(H, ru, rv)
+    if H.shape[:2] != p.ctrl.shape[:2]:
         fs.elevated += 1
     old = H.copy()
     own = _row(H, name)
     d = own.shape[0] - 1
+    if rational:
+        g = _divide(own[:, 3], row[:, 3])
+        if g is not None:  # the same curve in the same parameter, written with this net's weights
+            Kg = product(row, g) if len(g) > 1 else row * g[0]
+            row = np.concatenate([Kg[:, :3] / Kg[:, 3:4] * own[:, 3:4], own[:, 3:4]], axis=1)
     if row.shape[0] - 1 < d:
         row = elevate_curve(row, d - (row.shape[0] - 1))
     if np.array_equal(own, row):

@@ -199,3 +199,37 @@ def test_surface_derivatives():
     fv = (surface_eval(c, s, t + h) - surface_eval(c, s, t - h)) / (2 * h)
     np.testing.assert_allclose(surface_eval(du, s, t), fu, atol=1e-6)
     np.testing.assert_allclose(surface_eval(dv, s, t), fv, atol=1e-6)
+
+
+def test_surface_volume_of_a_closed_set_of_patches():
+    """Six bilinear faces of a box, and a rational octant sphere's eight patches, enclose their
+    known volumes; elevating a patch or moving the origin changes nothing."""
+    from watertight_cli.core.bezier import elevate_surface, surface_volume
+
+    lo, hi = np.array([-1.0, 0.5, 2.0]), np.array([2.0, 3.0, 2.75])
+    c = lambda i, j, k: np.where([i, j, k], hi, lo)  # noqa: E731
+    faces = [  # inward (s, t) sense, P_s x P_t pointing in; transposed below to point out
+        [[c(0, 0, 0), c(0, 1, 0)], [c(1, 0, 0), c(1, 1, 0)]],
+        [[c(0, 0, 1), c(1, 0, 1)], [c(0, 1, 1), c(1, 1, 1)]],
+        [[c(0, 0, 0), c(0, 0, 1)], [c(0, 1, 0), c(0, 1, 1)]],
+        [[c(1, 0, 0), c(1, 1, 0)], [c(1, 0, 1), c(1, 1, 1)]],
+        [[c(0, 0, 0), c(1, 0, 0)], [c(0, 0, 1), c(1, 0, 1)]],
+        [[c(0, 1, 0), c(0, 1, 1)], [c(1, 1, 0), c(1, 1, 1)]],
+    ]
+    nets = [np.array(f, float).transpose(1, 0, 2) for f in faces]
+    nets[1] = elevate_surface(nets[1], 3, 2)
+    assert sum(surface_volume(n) for n in nets) == pytest.approx(np.prod(hi - lo), rel=1e-13)
+
+    # sphere octant x, y, z >= 0 as a rational biquadratic patch with one collapsed side (a pole)
+    r2 = np.sqrt(0.5)
+    arc = np.array([[1, 0, 0, 1], [r2, r2, 0, r2], [0, 1, 0, 1]])  # quarter circle, homogeneous
+    prof = np.array([[1, 0, 1], [r2, r2, r2], [0, 1, 1]])  # (cos, sin, weight) in the meridian
+    H = np.zeros((3, 3, 4))
+    for i in range(3):
+        for j in range(3):
+            x, y = arc[i, :2] / arc[i, 3]
+            cz, sz, wz = prof[j]
+            w = arc[i, 3] * wz
+            H[i, j] = [x * cz / wz * w, y * cz / wz * w, sz / wz * w, w]
+    v = surface_volume(H, rational=True)
+    assert abs(v) == pytest.approx(np.pi / 6.0, rel=1e-9)

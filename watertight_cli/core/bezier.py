@@ -28,6 +28,7 @@ __all__ = [
     "rational_surface_eval",
     "rational_surface_eval_grid",
     "surface_derivatives",
+    "surface_volume",
     "curve_split",
     "curve_segment",
     "surface_split_u",
@@ -143,6 +144,47 @@ def surface_derivatives(ctrl) -> tuple[np.ndarray, np.ndarray]:
     du = m * np.diff(ctrl, axis=0) if m > 0 else np.zeros_like(ctrl)
     dv = n * np.diff(ctrl, axis=1) if n > 0 else np.zeros_like(ctrl)
     return du, dv
+
+
+def surface_volume(ctrl, rational: bool = False) -> float:
+    """The patch's share of an enclosed volume, (1/3) * integral of P . (P_s x P_t) over [0, 1]^2.
+
+    Summed over the faces of a closed surface (each with its outward sense: negate for a patch whose
+    (s, t) sense is inward) this is the enclosed volume (divergence theorem). Gauss-Legendre
+    quadrature: exact to rounding for a polynomial patch (the integrand has degree 3m - 1 in s);
+    a rational patch gets twice the points, which leaves an error far below a patch's deviation
+    bound for the weights met in CAD models.
+    """
+    ctrl = np.asarray(ctrl, dtype=float)
+    m, n = ctrl.shape[0] - 1, ctrl.shape[1] - 1
+    ks, kt = (3 * m) // 2 + 1, (3 * n) // 2 + 1
+    if rational:
+        ks, kt = 2 * ks + 2, 2 * kt + 2
+    xs, ws = _gauss01(ks)
+    xt, wt = _gauss01(kt)
+
+    def grid(net, s, t):
+        return surface_eval_grid(net, s, t)
+
+    du, dv = surface_derivatives(ctrl)
+    h = grid(ctrl, xs, xt)
+    hs = grid(du, xs, xt) if m > 0 else np.zeros_like(h)
+    ht = grid(dv, xs, xt) if n > 0 else np.zeros_like(h)
+    if rational:
+        w, ws_, wt_ = h[..., 3:], hs[..., 3:], ht[..., 3:]
+        p = h[..., :3] / w
+        ps = (hs[..., :3] - p * ws_) / w
+        pt = (ht[..., :3] - p * wt_) / w
+    else:
+        p, ps, pt = h, hs, ht
+    f = np.einsum("abi,abi->ab", p, np.cross(ps, pt))
+    return float(ws @ f @ wt) / 3.0
+
+
+@functools.lru_cache(maxsize=64)
+def _gauss01(k: int) -> tuple[np.ndarray, np.ndarray]:
+    x, w = np.polynomial.legendre.leggauss(max(k, 1))
+    return 0.5 * (x + 1.0), 0.5 * w
 
 
 # ---------------------------------------------------------------------------------------- subdivision
