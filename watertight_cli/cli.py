@@ -69,11 +69,25 @@ class RunReport:
         return EXIT_OK
 
 
-def _measure(path: str, tol) -> dict:
+def _measure(path: str, tol, pages: list | None = None) -> dict:
     from .inspect import inspect
     from .report import input_report
 
-    return input_report(inspect(path, tol))
+    ins = inspect(path, tol)
+    rep = input_report(ins)
+    if pages is not None:  # --html: the pictures' arrays, while the shape is at hand
+        from .scene import report_item
+
+        pages.append(report_item(rep, ins))
+    return rep
+
+
+def _write_html(write, path: str, run: RunReport) -> None:
+    """--html: write the page; a failure is one more failed file (exit 1), never a traceback."""
+    _, error = _run_guarded(write, path)
+    if error:
+        _err(error)
+        run.add(FileOutcome(path, error=error))
 
 
 def _run_guarded(fn, path: str):
@@ -115,7 +129,10 @@ def main():
 @click.option("--samples", type=click.IntRange(3, 10000), default=33, show_default=True,
               help="Samples per edge for gap measurement (equally spaced, ends included).")
 @click.option("-q", "--quiet", is_flag=True, help="No table on stderr.")
-def report(models, as_json, max_gap, samples, quiet):
+@click.option("--html", "html_path", type=click.Path(dir_okay=False), default=None, metavar="PATH",
+              help="Also write a self-contained HTML page to PATH: gap histogram, worst edges with "
+                   "their locations, pictures of the model with edges coloured by gap.")
+def report(models, as_json, max_gap, samples, quiet, html_path):
     """Measure how far MODELS are from watertight.
 
     For every edge: the largest distance between its 3D curve C and each face's surface(pcurve),
@@ -130,8 +147,9 @@ def report(models, as_json, max_gap, samples, quiet):
 
     tol = Tolerances(gap_samples=samples)
     run = RunReport()
+    pages = [] if html_path else None
     for path in models:
-        rep, error = _run_guarded(lambda p=path: _measure(p, tol), path)
+        rep, error = _run_guarded(lambda p=path: _measure(p, tol, pages), path)
         gate = None
         if rep is not None and max_gap is not None and rep["gap"]["max"] > max_gap:
             gate = f"{path}: max gap {rep['gap']['max']:.3g} exceeds --max-gap {max_gap:g}"
@@ -144,6 +162,11 @@ def report(models, as_json, max_gap, samples, quiet):
             click.echo(format_table(rep), err=True)
         if gate:
             _err(gate)
+    if html_path:
+        from .scene import write_report_html
+
+        settings, errors = click.get_current_context().params, [o.error for o in run.outcomes if o.error]
+        _write_html(lambda: write_report_html(html_path, pages, errors, settings), html_path, run)
     if as_json:
         from .report import SCHEMA_VERSION
 
@@ -197,8 +220,11 @@ def _progress_factory(enabled: bool, path: str):
 @click.option("--max-deviation", type=float, default=None, metavar="X",
               help="Gate: exit 3 when a face's deviation bound exceeds X (model units).")
 @click.option("-q", "--quiet", is_flag=True, help="No table and no progress bar on stderr.")
+@click.option("--html", "html_path", type=click.Path(dir_okay=False), default=None, metavar="PATH",
+              help="Also write a self-contained HTML page to PATH: gaps before and after, worst edges, "
+                   "pictures before and after, degrees and deviation per face, settings and times.")
 def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, fast, max_gap,
-            max_deviation, quiet):
+            max_deviation, quiet, html_path):
     """Convert SOURCE (STEP or IGES) into a watertight model of untrimmed Bezier patches, TARGET.
 
     Every trimmed face is split into Bezier patches on [0,1]^2 (stage 1); then every patch side
@@ -225,9 +251,10 @@ def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, fa
 
     tol = Tolerances(approx_rel=tolerance, max_degree=max_degree)
     progress = _progress_factory(not quiet, source)
+    keep = {} if html_path else None
     try:
         rep, error = _run_guarded(
-            lambda: convert_file(source, target, tol, stage, progress, overwrite, fast), source)
+            lambda: convert_file(source, target, tol, stage, progress, overwrite, fast, keep=keep), source)
     finally:
         if progress is not None:
             progress.close()
@@ -242,6 +269,11 @@ def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, fa
         click.echo((format_full_table if stage == "full" else format_untrim_table)(rep), err=True)
     if gate:
         _err(gate)
+    if html_path and rep is not None:
+        from .scene import write_convert_html
+
+        settings = click.get_current_context().params
+        _write_html(lambda: write_convert_html(html_path, rep, keep, settings, tol), html_path, run)
     if as_json:
         doc = rep or {"schema_version": SCHEMA_VERSION, "file": source, "error": error}
         sys.stdout.write(json.dumps(doc, indent=1, default=_jsonable) + "\n")

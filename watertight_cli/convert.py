@@ -29,12 +29,15 @@ class VerifyError(WatertightError):
 
 
 def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full",
-                 progress=None, overwrite: bool = True, fast: bool = False) -> dict:
+                 progress=None, overwrite: bool = True, fast: bool = False, keep: dict | None = None) -> dict:
     """Convert one file; returns its report. ``dst`` None: convert and verify, write nothing.
 
     ``progress(stage_name, total)`` returns a callable advanced by one per item (faces for untrim
     and verify, patches for build), or None.
     Raises WatertightError (one line, naming the file) on any failure, before anything is written.
+    ``keep``, when given, receives the measured input ("inspection"), the patches ("result") and,
+    after a full conversion's read-back, the written file's measurement ("read_back"), for the
+    HTML pictures.
     """
     from .inspect import inspect
     from .occ.build import input_face_areas, open_shell, patch_face
@@ -69,6 +72,8 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
                 if not retry.problems:
                     result.faces[i] = retry
     times["untrim"] = time.perf_counter() - t
+    if keep is not None:
+        keep.update(inspection=ins, result=result)
 
     t = time.perf_counter()
     areas = input_face_areas(ins.shape)
@@ -86,7 +91,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     if stage == "full":
         from .stage2 import finish
 
-        return finish(ins, result, report, tol, src, dst, progress, overwrite, fast)
+        return finish(ins, result, report, tol, src, dst, progress, overwrite, fast, keep)
     if dst is not None:
         t = time.perf_counter()
         tick = progress("build", len(result.patches)) if progress else None

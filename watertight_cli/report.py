@@ -68,15 +68,20 @@ def input_report(ins: Inspection) -> dict:
             "max_approximation": max([f.approximation for f in m.faces]
                                      + [e.approximation for e in m.edges], default=0.0),
         },
-        "edge_gaps": [
-            {"edge": g.edge, "faces": list(g.faces), "uses": g.uses, "gap": g.gap,
-             "curve_to_face": g.curve_gap, "face_to_face": g.face_gap, "tolerance": g.tolerance,
-             "where": [round(x, 9) for x in g.where]}
-            for g in gaps
-        ],
+        "edge_gaps": edge_gap_rows(gaps),
         "timing_s": {k: round(v, 4) for k, v in ins.timings.items()},
     }
     return report
+
+
+def edge_gap_rows(gaps) -> list[dict]:
+    """Per-edge gaps as JSON rows, worst first (``where``: the worst sample's x, y, z)."""
+    return [
+        {"edge": g.edge, "faces": list(g.faces), "uses": g.uses, "gap": g.gap,
+         "curve_to_face": g.curve_gap, "face_to_face": g.face_gap, "tolerance": g.tolerance,
+         "where": [round(x, 9) for x in g.where]}
+        for g in sorted(gaps, key=lambda g: -g.gap)
+    ]
 
 
 def format_table(r: dict) -> str:

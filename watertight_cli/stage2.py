@@ -19,10 +19,11 @@ from .tolerances import Tolerances
 
 
 def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None, progress,
-           overwrite: bool, fast: bool) -> dict:
+           overwrite: bool, fast: bool, keep: dict | None = None) -> dict:
     from .occ.assemble import input_groups, is_valid, join, volume
     from .occ.build import patch_face
     from .occ.io import write_shape
+    from .report import edge_gap_rows
     from .substitute import substitute
 
     model = ins.model
@@ -94,6 +95,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "shells": model.shells,
             "volume": vol_in,
             "volume_kernel": vol_kernel,
+            "edge_gaps": edge_gap_rows(ins.gaps),
         },
         "after": {
             "faces": len(result.patches),
@@ -114,7 +116,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
         times["write"] = time.perf_counter() - t
         if not fast:
             t = time.perf_counter()
-            invariants.update(_verify_written(dst, report, tol, model))
+            invariants.update(_verify_written(dst, report, tol, model, keep))
             times["verify_written"] = time.perf_counter() - t
     report["invariants"] = invariants
     report["ok"] = all(invariants.values())
@@ -139,11 +141,14 @@ def _patch_volume(model, result, faces: list[int]) -> float:
     return abs(total)
 
 
-def _verify_written(dst: str, report: dict, tol: Tolerances, model_in) -> dict:
+def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dict | None = None) -> dict:
     """Read the written file back and measure I1-I3 on it."""
     from .inspect import inspect, trimmed
+    from .report import edge_gap_rows
 
     out = inspect(dst, tol)
+    if keep is not None:
+        keep["read_back"] = out
     m = out.model
     gap = max((g.gap for g in out.gaps), default=0.0)
     free = sum(1 for e in m.edges if not e.degenerate and e.uses == 1)
@@ -161,6 +166,7 @@ def _verify_written(dst: str, report: dict, tol: Tolerances, model_in) -> dict:
         "free_boundary_length": free_len,
         "solids": m.solids,
         "shells": m.shells,
+        "edge_gaps": edge_gap_rows(out.gaps),
     })
     return {
         "I1": bezier == len(m.faces),

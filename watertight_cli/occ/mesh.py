@@ -1,0 +1,51 @@
+"""Triangles of a shape's faces, for pictures (``watertight_cli.scene`` and the HTML report).
+
+The kernel's mesher (``BRepMesh_IncrementalMesh``) runs on a copy of the shape, coarse on purpose:
+the pictures decimate to a few tens of thousands of triangles anyway. Nothing here is used for
+measurement.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from OCP.BRep import BRep_Tool
+from OCP.BRepBuilderAPI import BRepBuilderAPI_Copy
+from OCP.BRepMesh import BRepMesh_IncrementalMesh
+from OCP.TopAbs import TopAbs_FACE
+from OCP.TopLoc import TopLoc_Location
+from OCP.TopoDS import TopoDS, TopoDS_Shape
+
+from .extract import diagonal, indexed
+from .io import quiet
+
+
+def triangulate(shape: TopoDS_Shape, deflection_rel: float = 2e-3,
+                angle: float = 0.5) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per face, in the order of ``indexed(shape, TopAbs_FACE)`` (the model's face numbering):
+    (vertices (n, 3) float, triangles (m, 3) int). A face the mesher leaves empty gives empty arrays.
+
+    deflection_rel : chordal deflection relative to the bounding-box diagonal
+    angle : angular deflection in radians
+    """
+    copy = BRepBuilderAPI_Copy(shape, True, False).Shape()  # the caller's shape stays unmeshed
+    diag = diagonal(copy) or 1.0
+    with quiet():
+        BRepMesh_IncrementalMesh(copy, deflection_rel * diag, False, angle, False)
+    fmap = indexed(copy, TopAbs_FACE)
+    out = []
+    for fi in range(1, fmap.Extent() + 1):
+        face = TopoDS.Face_s(fmap.FindKey(fi))
+        loc = TopLoc_Location()
+        tri = BRep_Tool.Triangulation_s(face, loc)
+        if tri is None or tri.NbTriangles() == 0:
+            out.append((np.zeros((0, 3)), np.zeros((0, 3), dtype=int)))
+            continue
+        trsf = loc.Transformation()
+        identity = loc.IsIdentity()
+        pts = np.empty((tri.NbNodes(), 3))
+        for i in range(1, tri.NbNodes() + 1):
+            p = tri.Node(i)
+            pts[i - 1] = (p if identity else p.Transformed(trsf)).Coord()
+        tris = np.array([tri.Triangle(i).Get() for i in range(1, tri.NbTriangles() + 1)], dtype=int) - 1
+        out.append((pts, tris))
+    return out
