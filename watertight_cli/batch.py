@@ -33,6 +33,7 @@ import multiprocessing as mp
 import os
 import re
 import signal
+import threading
 import time
 import uuid
 from collections import deque
@@ -382,6 +383,26 @@ def _shown(reason: str, job: Job) -> str:
     return reason.replace(job.dst, job.dst_shown).replace(job.src, job.shown)
 
 
+_START_LOCK = threading.Lock()
+
+
+def _start(proc) -> None:
+    """Start a worker, also from a daemonic process (Dask's worker processes are daemons, and
+    multiprocessing refuses them children). The worker is supervised and killed by its caller, never
+    orphaned, so the flag is lifted for the start only (the usual work-around, under a lock)."""
+    me = mp.current_process()
+    with _START_LOCK:
+        had, daemon = "daemon" in me._config, me._config.get("daemon")
+        me._config["daemon"] = False
+        try:
+            proc.start()
+        finally:
+            if had:
+                me._config["daemon"] = daemon
+            else:
+                me._config.pop("daemon", None)
+
+
 def run_local(jobs: list[Job], n_jobs: int, on_start: Callable[[Job], None] | None = None,
               on_done: Callable[[FileResult], None] | None = None) -> list[FileResult]:
     """Run ``jobs`` with at most ``n_jobs`` worker processes at a time, one fresh process per file.
@@ -413,7 +434,7 @@ def run_local(jobs: list[Job], n_jobs: int, on_start: Callable[[Job], None] | No
                                    name=f"watertight {job.rel}")
                 rn = _Running(job, proc, recv, _stat(job.dst))
                 try:
-                    proc.start()
+                    _start(proc)
                 except Exception as exc:  # noqa: BLE001 - no worker for this file: its failure
                     send.close()
                     recv.close()
