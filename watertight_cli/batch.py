@@ -111,6 +111,11 @@ def _glob_base(pattern: str) -> Path:
 
 
 def _folder_files(folder: Path, recursive: bool, skip: Path | None) -> list[Path]:
+    """STEP/IGES files in ``folder``, without hidden ones and without those in the output folder
+    ``skip`` when it lies inside (an earlier run's outputs); when ``folder`` is itself the output
+    folder its files stay, and the output == input check refuses them."""
+    if skip is not None and _inside(folder, skip):
+        skip = None
     found = folder.rglob("*") if recursive else folder.iterdir()
     out = []
     for p in found:
