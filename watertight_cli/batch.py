@@ -310,6 +310,13 @@ def _stat(path: str):
         return None
 
 
+def _size(path: str) -> int:
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return 0
+
+
 def _rss(pid: int) -> int | None:
     try:
         with open(f"/proc/{pid}/statm") as fh:
@@ -355,6 +362,7 @@ def _finish(rn: _Running) -> FileResult:
     if rn.killed is None and rn.msg is not None:
         kind, payload, tb = rn.msg
         if kind == "ok":
+            payload["file"], payload["output"] = job.shown, job.dst_shown  # as the user named them
             res.report = payload
             return res
         res.failure, res.reason, res.traceback = kind, _shown(payload, job), tb
@@ -418,7 +426,8 @@ def run_local(jobs: list[Job], n_jobs: int, on_start: Callable[[Job], None] | No
     ctx = _context()
     fault = os.environ.get(FAULT_ENV, "")
     debug = bool(os.environ.get("WATERTIGHT_DEBUG"))
-    pending = deque(enumerate(jobs))
+    # largest input first: a big file started last would keep one worker busy while the others idle
+    pending = deque(sorted(enumerate(jobs), key=lambda ij: -_size(ij[1].src)))
     running: dict[int, _Running] = {}  # by index
     results: dict[int, FileResult] = {}
 
@@ -523,7 +532,9 @@ def run_dask(jobs: list[Job], scheduler: str, on_start: Callable[[Job], None] | 
             job.fault = os.environ.get(FAULT_ENV, "")
             job.debug = bool(os.environ.get("WATERTIGHT_DEBUG"))
             Path(job.dst).parent.mkdir(parents=True, exist_ok=True)
-            futures[client.submit(run_one, job, pure=False, key=f"watertight-{run_id}-{i}-{job.rel}")] = i
+            key = f"watertight-{run_id}-{i}-{job.rel}"
+            # largest input first (a higher priority runs earlier), as run_local does
+            futures[client.submit(run_one, job, pure=False, key=key, priority=_size(job.src))] = i
             if on_start is not None:
                 on_start(job)
         for fut in as_completed(futures):
