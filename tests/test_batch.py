@@ -190,6 +190,7 @@ def test_batch_gate_exit_3_and_junit_failure(tmp_path):
 
 @pytest.mark.parametrize("args, words", [
     (["a.step", "b.step", "c.step"], "IN OUT, or IN... -o OUTDIR"),
+    ([".", "b.step"], "is a folder (the batch form is IN... -o OUTDIR)"),
     (["a.step", "b.step", "--jobs", "2"], "--jobs needs the batch form"),
     (["a.step", "-o", "out", "--executor", "dask"], "needs --scheduler"),
     (["a.step", "-o", "out", "--scheduler", "tcp://x:1"], "needs --executor dask"),

@@ -303,6 +303,10 @@ def convert(paths, output_dir, stage, max_degree, tolerance, as_json, overwrite,
              "and no -o)")
         sys.exit(EXIT_USAGE)
     source, target = paths
+    for path in (source, target):
+        if os.path.isdir(path):
+            _err(f"{path}: is a folder (the batch form is IN... -o OUTDIR)")
+            sys.exit(EXIT_USAGE)
     if os.path.exists(target) and os.path.exists(source) and os.path.samefile(source, target):
         _err(f"{target}: the output would overwrite the input")
         sys.exit(EXIT_USAGE)
