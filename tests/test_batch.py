@@ -84,6 +84,13 @@ def test_batch_inputs_are_untouched(batch):
     assert digests(batch["src"]) == batch["before"]
 
 
+def test_batch_output_equals_the_one_file_form(batch, tmp_path):
+    """A worker process writes the same bytes as `convert IN OUT` (I6)."""
+    out = tmp_path / "torus.step"
+    assert run("convert", "-q", batch["src"] / "torus.step", out).exit_code == EXIT_OK
+    assert out.read_bytes() == (batch["out"] / "torus.step").read_bytes()
+
+
 def test_batch_json_report(batch):
     doc = batch["doc"]
     assert json.loads(batch["result"].stdout) == doc  # --json prints the --report document
