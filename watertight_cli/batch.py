@@ -441,7 +441,7 @@ def run_local(jobs: list[Job], n_jobs: int, on_start: Callable[[Job], None] | No
         while pending or running:
             while pending and len(running) < max(1, n_jobs):
                 i, job = pending.popleft()
-                job.fault, job.debug = fault, debug
+                job.fault, job.debug = job.fault or fault, job.debug or debug  # a Dask job brings its own
                 Path(job.dst).parent.mkdir(parents=True, exist_ok=True)
                 recv, send = ctx.Pipe(duplex=False)
                 proc = ctx.Process(target=_worker_main, args=(send, job), daemon=True,
