@@ -216,6 +216,17 @@ def test_usage_errors(tmp_path, monkeypatch, args, words):
     assert words in error_lines(result)[0]
 
 
+def test_max_memory_sizes():
+    from watertight_cli.cli import _Size
+
+    size = _Size()
+    assert size.convert("2G", None, None) == 2 * 2**30
+    assert size.convert("512MiB", None, None) == 512 * 2**20
+    assert size.convert("300", None, None) == 300 * 2**20
+    result = run("convert", "a.step", "-o", "out", "--max-memory", "nan")
+    assert result.exit_code == EXIT_USAGE and "Traceback" not in result.output
+
+
 def test_missing_dask_is_one_line_exit_2(tmp_path, monkeypatch):
     import sys
 

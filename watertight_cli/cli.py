@@ -199,7 +199,7 @@ class _Size(click.ParamType):
             n = float(text[:-1] if unit else text) * (unit or 2**20)
         except ValueError:
             self.fail(f"{value!r} is not a size such as 512M or 2G", param, ctx)
-        if n <= 0:
+        if not 0 < n < 2**62:  # also nan and inf
             self.fail(f"{value!r} is not a positive size", param, ctx)
         return int(n)
 
