@@ -43,27 +43,30 @@ def _convert(folder: Path, jobs: int, recursive: bool, stage: str) -> tuple[floa
 def run(folder: Path = FIXTURES, repeat: int = 1, recursive: bool = False, stage: str = "full") -> dict:
     """Median wall times of ``--jobs 1`` and ``--jobs 2`` (alternating runs) and their ratio."""
     walls: dict[int, list[float]] = {1: [], 2: []}
-    busy: dict[int, list[float]] = {1: [], 2: []}  # summed per-file worker times
+    busy: dict[int, list[float]] = {1: [], 2: []}  # summed per-file worker wall times
+    cpu: dict[int, list[float]] = {1: [], 2: []}  # summed per-file worker CPU times
     totals = {}
     load = [os.getloadavg()[0]]
     for _ in range(repeat):
         for jobs in (1, 2):
             wall, totals[jobs] = _convert(folder, jobs, recursive, stage)
             walls[jobs].append(wall)
-            busy[jobs].append(totals[jobs]["cpu_s"])
+            busy[jobs].append(totals[jobs]["time_s"])
+            cpu[jobs].append(totals[jobs]["cpu_s"])
             load.append(os.getloadavg()[0])
     t1, t2 = statistics.median(walls[1]), statistics.median(walls[2])
     res = {"folder": str(folder), "files": totals[1]["files"], "ok": totals[1]["ok"],
            "gate": totals[1]["gate"], "failed": totals[1]["failed"], "jobs1_s": t1,
-           "jobs2_s": t2, "ratio": t2 / t1, "runs": walls, "file_time_sums": busy, "load": load,
-           "cores": os.cpu_count()}
+           "jobs2_s": t2, "ratio": t2 / t1, "runs": walls, "file_time_sums": busy,
+           "file_cpu_sums": cpu, "load": load, "cores": os.cpu_count()}
     print(f"batch conversion of {res['files']} files in {folder} (stage {stage}; "
           f"ok {res['ok']}, gate {res['gate']}, failed {res['failed']}; {res['cores']} cores):")
     print(f"  --jobs 1: {t1:8.2f} s (median of {repeat})")
     print(f"  --jobs 2: {t2:8.2f} s (median of {repeat})")
     print(f"  ratio --jobs 2 / --jobs 1: {res['ratio']:.3f} (target <= 0.65)")
     print(f"  summed per-file times: --jobs 1 {statistics.median(busy[1]):.1f} s, --jobs 2 "
-          f"{statistics.median(busy[2]):.1f} s (more with 2: the workers compete for the cores)")
+          f"{statistics.median(busy[2]):.1f} s; their CPU times: {statistics.median(cpu[1]):.1f} s and "
+          f"{statistics.median(cpu[2]):.1f} s (wall above CPU: the workers wait for a core)")
     print("  1-minute load average before and after each run: " + ", ".join(f"{x:.1f}" for x in load)
           + f" (other work on the machine distorts the ratio; {res['cores']} cores)")
     return res

@@ -109,6 +109,7 @@ def test_batch_json_report(batch):
     assert t["files"] == 7 and t["failed"] == 3 and t["ok"] + t["gate"] == 4
     assert t["faces"] == sum(files[r]["faces"] for r in GOOD)
     assert doc["options"]["jobs"] == 2 and doc["options"]["recursive"] is True
+    assert all(files[r]["cpu_s"] > 0 for r in GOOD) and t["cpu_s"] > 0 and t["time_s"] > 0
 
 
 def test_batch_junit_report(batch):

@@ -83,7 +83,8 @@ class FileResult:
     report: dict | None = None
     failure: str | None = None
     reason: str | None = None
-    elapsed: float = 0.0
+    elapsed: float = 0.0  # wall time of its worker, s
+    cpu: float | None = None  # CPU time of its worker (None when it died), s
     gate: str | None = None
     traceback: str | None = None
 
@@ -274,10 +275,11 @@ def _worker_main(conn, job: Job) -> None:
             reason = text.splitlines()[0] if text else type(exc).__name__
             msg = ("internal", f"{job.src}: internal error ({type(exc).__name__}: {reason}); "
                    "set WATERTIGHT_DEBUG=1 for details", traceback.format_exc())
+    cpu = time.process_time()
     try:
-        conn.send(msg)
+        conn.send((*msg, cpu))
     except Exception as exc:  # noqa: BLE001 - e.g. a report that does not pickle
-        conn.send(("internal", f"{job.src}: internal error (cannot send the report: {exc})", None))
+        conn.send(("internal", f"{job.src}: internal error (cannot send the report: {exc})", None, cpu))
     conn.close()
     os._exit(0)  # no interpreter teardown: the kernel's static destructors have nothing to add
 
@@ -360,7 +362,7 @@ def _finish(rn: _Running) -> FileResult:
         rn.conn.close()
     res = FileResult(job.shown, job.rel, job.dst_shown, elapsed=time.monotonic() - rn.t0)
     if rn.killed is None and rn.msg is not None:
-        kind, payload, tb = rn.msg
+        kind, payload, tb, res.cpu = rn.msg
         if kind == "ok":
             payload["file"], payload["output"] = job.shown, job.dst_shown  # as the user named them
             res.report = payload
@@ -573,6 +575,7 @@ def file_entry(r: FileResult) -> dict:
         "gap_before": before.get("gap_max"),
         "gap_after": after.get("gap_max"),
         "time_s": round(r.elapsed, 3),
+        "cpu_s": None if r.cpu is None else round(r.cpu, 3),
         "report": r.report,
     }
 
@@ -585,7 +588,8 @@ def totals(results: list[FileResult], wall: float) -> dict:
         "failed": sum(r.status == "failed" for r in results),
         "faces": sum((r.report or {}).get("faces_in", 0) for r in results),
         "patches": sum((r.report or {}).get("patches_out", 0) for r in results),
-        "cpu_s": round(sum(r.elapsed for r in results), 3),
+        "time_s": round(sum(r.elapsed for r in results), 3),
+        "cpu_s": round(sum(r.cpu or 0.0 for r in results), 3),
         "wall_s": round(wall, 3),
     }
 
