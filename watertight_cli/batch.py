@@ -21,8 +21,9 @@ CLI turns the results (``FileResult``) into messages, reports and the exit code.
 Test-only hook: the environment variable ``WATERTIGHT_TEST_FAULT`` (read by the supervisor when it
 starts a worker, and passed to that worker) makes a worker misbehave on purpose, so that tests can
 check the batch survives it. Its value is ``|``-separated ``KIND:NAME`` items, where NAME is an input
-file's name and KIND is ``segv`` (the worker kills itself with SIGSEGV), ``hang`` (it sleeps forever)
-or ``oom`` (it allocates memory until stopped). It is not an option and is not meant for users.
+file's name and KIND is ``segv`` (the worker kills itself with SIGSEGV), ``hang`` (it makes the
+temporary file of an atomic write of its output, then sleeps forever) or ``oom`` (it allocates memory
+until stopped). It is not an option and is not meant for users.
 """
 
 from __future__ import annotations
@@ -246,7 +247,11 @@ def _worker_main(conn, job: Job) -> None:
     kind = _fault(job)
     if kind == "segv":
         os.kill(os.getpid(), signal.SIGSEGV)
-    elif kind == "hang":
+    elif kind == "hang":  # as if stuck inside the atomic write: its temporary file exists
+        import tempfile
+
+        d = Path(job.dst)
+        tempfile.mkstemp(prefix=f".{d.stem}.", suffix=d.suffix, dir=d.parent)
         while True:
             time.sleep(3600)
     try:
