@@ -197,9 +197,57 @@ def _progress_factory(enabled: bool, path: str):
     return make
 
 
-@main.command(epilog=EPILOG)
-@click.argument("source", type=click.Path(dir_okay=False))
-@click.argument("target", type=click.Path(dir_okay=False))
+CONVERT_EPILOG = EPILOG + """
+\b
+Batch form (IN... -o OUTDIR), for CI:
+  watertight convert models/ -o out/ --recursive --jobs 4 --timeout 600 \\
+      --report out/report.json --junit out/junit.xml
+  Every file runs in a fresh worker process; a file that fails, crashes the worker, passes
+  --timeout or --max-memory is reported in one line and the batch goes on (exit 1 at the end).
+"""
+
+
+class _Size(click.ParamType):
+    """A memory size: 512M, 2G, 1.5G, or a number of megabytes."""
+
+    name = "size"
+    UNITS = {"k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, int):
+            return value
+        text = str(value).strip().lower().removesuffix("b").removesuffix("i")
+        unit = self.UNITS.get(text[-1:], None)
+        try:
+            n = float(text[:-1] if unit else text) * (unit or 2**20)
+        except ValueError:
+            self.fail(f"{value!r} is not a size such as 512M or 2G", param, ctx)
+        if not 0 < n < 2**62:  # also nan and inf
+            self.fail(f"{value!r} is not a positive size", param, ctx)
+        return int(n)
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "timeout": "--timeout",
+              "max_memory": "--max-memory", "report_json": "--report", "junit": "--junit",
+              "executor": "--executor", "scheduler": "--scheduler"}
+
+
+@main.command(epilog=CONVERT_EPILOG)
+@click.argument("paths", nargs=-1, required=True, metavar="IN [OUT] | IN... -o OUTDIR")
+@click.option("-o", "--output-dir", "output_dir", type=click.Path(file_okay=False), default=None,
+              metavar="OUTDIR",
+              help="Batch form: convert every IN (files, folders, globs) into OUTDIR, mirroring the input "
+                   "tree. Without it, IN OUT converts one file.")
+@click.option("--recursive", is_flag=True, help="Batch: descend into folders (and let ** in globs recurse).")
+@click.option("--format", "fmt", type=click.Choice(["step", "iges"]), default=None,
+              help="Batch: output format (suffix .step or .igs). Default: the input's own kind and suffix.")
 @click.option("--stage", type=click.Choice(["full", "untrim"]), default="full", show_default=True,
               help="full: untrimmed Bezier patches whose neighbours share one boundary curve "
                    "(a watertight B-rep). untrim: stage 1 only, patches that keep their faces' "
@@ -211,30 +259,53 @@ def _progress_factory(enabled: bool, path: str):
               show_default=True, metavar="REL",
               help="Allowed deviation where approximation is needed, relative to the model's "
                    "bounding-box diagonal (1e-6: one micron on a one-metre part).")
-@click.option("--json", "as_json", is_flag=True, help="Print the conversion report as JSON on stdout.")
-@click.option("--overwrite/--no-overwrite", default=True, show_default=True,
-              help="Replace TARGET when it exists.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the conversion report as JSON on stdout (batch: the --report document).")
+@click.option("--overwrite/--no-overwrite", default=None,
+              help="Replace outputs that exist. Default: replace for IN OUT (as before), refuse in the "
+                   "batch form (such a file fails). An input is never overwritten.")
 @click.option("--fast", is_flag=True, help="Do not read the written file back to verify it.")
 @click.option("--max-gap", type=float, default=None, metavar="X",
               help="Gate: exit 3 when the gap after conversion exceeds X (model units).")
 @click.option("--max-deviation", type=float, default=None, metavar="X",
               help="Gate: exit 3 when a face's deviation bound exceeds X (model units).")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Batch: worker processes at a time (default: the number of cores).")
+@click.option("--timeout", type=click.FloatRange(min=0.0, min_open=True), default=None, metavar="SECONDS",
+              help="Batch: kill a file's worker after SECONDS; that file fails.")
+@click.option("--max-memory", type=_Size(), default=None, metavar="SIZE",
+              help="Batch: kill a file's worker when its resident memory passes SIZE (512M, 2G; the "
+                   "kernel library alone takes ~0.3G); that file fails.")
+@click.option("--report", "report_json", type=click.Path(dir_okay=False), default=None, metavar="FILE.json",
+              help="Batch: write per-file results and totals as JSON (schema_version inside).")
+@click.option("--junit", type=click.Path(dir_okay=False), default=None, metavar="FILE.xml",
+              help="Batch: write JUnit XML, one test case per file (failure: failed or over a gate).")
+@click.option("--executor", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+              help="Batch: local worker processes, or a Dask cluster (--scheduler; needs the [dask] extra, "
+                   "watertight on every worker and the same paths).")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Batch with --executor dask: the scheduler, e.g. tcp://10.0.0.5:8786.")
 @click.option("-q", "--quiet", is_flag=True, help="No table and no progress bar on stderr.")
 @click.option("--html", "html_path", type=click.Path(dir_okay=False), default=None, metavar="PATH",
-              help="Also write a self-contained HTML page to PATH: gaps before and after, worst edges, "
-                   "pictures before and after, degrees and deviation per face, settings and times.")
-def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, fast, max_gap,
-            max_deviation, quiet, html_path):
-    """Convert SOURCE (STEP or IGES) into a watertight model of untrimmed Bezier patches, TARGET.
+              help="One-file form: also write a self-contained HTML page to PATH: gaps before and after, "
+                   "worst edges, pictures before and after, degrees and deviation per face, settings and "
+                   "times.")
+def convert(paths, output_dir, stage, max_degree, tolerance, as_json, overwrite, fast, max_gap,
+            max_deviation, quiet, html_path, **batch_opts):
+    """Convert STEP or IGES models into watertight models of untrimmed Bezier patches.
+
+    Two forms: `watertight convert IN OUT` converts one file; `watertight convert IN... -o OUTDIR`
+    converts files, folders and globs in parallel worker processes (see the batch options and the
+    exit codes below).
 
     Every trimmed face is split into Bezier patches on [0,1]^2 (stage 1); then every patch side
     on an edge takes the edge's one shared curve, so neighbouring faces meet exactly (stage 2),
-    and the patches are joined into shells and solids. TARGET's suffix picks the format
+    and the patches are joined into shells and solids. OUT's suffix picks the format
     (.step/.stp or .igs/.iges).
 
     Checks: every stage-1 patch is verified against its input face (sampled deviation within
     the bound, trimming sides on the input's surface(pcurve), summed area, no folds) before
-    anything is written; the file is written atomically (no partial TARGET); then it is read
+    anything is written; the file is written atomically (no partial OUT); then it is read
     back and measured: all faces untrimmed Bezier (I1), gaps after at most 1e-12 of the
     diagonal (I2), no new free edges (I3), each face's deviation bound within the tolerance plus
     the input's own gap at its edges (I4), kernel validity. A failed invariant exits 3, with the
@@ -244,12 +315,41 @@ def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, fa
     the shared curve used per edge, and per face the deviation bound: stage 1's (approximation
     where the degree budget forced one, repairs of the input) plus the substitution's move.
     """
-    from .convert import convert_file, format_untrim_table
-    from .report import SCHEMA_VERSION
-    from .stage2 import format_full_table
     from .tolerances import Tolerances
 
     tol = Tolerances(approx_rel=tolerance, max_degree=max_degree)
+    if output_dir is not None and html_path:
+        _err("--html needs the one-file form: IN OUT")
+        sys.exit(EXIT_USAGE)
+    if output_dir is not None:
+        sys.exit(_convert_batch(paths, output_dir, tol, stage, as_json, bool(overwrite), fast, max_gap,
+                                max_deviation, quiet, **batch_opts))
+    given = [name for key, name in BATCH_ONLY.items() if batch_opts.get(key) not in (None, False, "local")]
+    if given:
+        _err(f"{', '.join(given)} needs the batch form: IN... -o OUTDIR")
+        sys.exit(EXIT_USAGE)
+    if len(paths) != 2:
+        _err(f"convert takes IN OUT, or IN... -o OUTDIR (got {len(paths)} path{'s' * (len(paths) != 1)} "
+             "and no -o)")
+        sys.exit(EXIT_USAGE)
+    source, target = paths
+    for path in (source, target):
+        if os.path.isdir(path):
+            _err(f"{path}: is a folder (the batch form is IN... -o OUTDIR)")
+            sys.exit(EXIT_USAGE)
+    if os.path.exists(target) and os.path.exists(source) and os.path.samefile(source, target):
+        _err(f"{target}: the output would overwrite the input")
+        sys.exit(EXIT_USAGE)
+    sys.exit(_convert_one(source, target, tol, stage, as_json, True if overwrite is None else overwrite,
+                          fast, max_gap, max_deviation, quiet, html_path))
+
+
+def _convert_one(source, target, tol, stage, as_json, overwrite, fast, max_gap, max_deviation, quiet,
+                 html_path=None) -> int:
+    from .convert import convert_file, format_untrim_table
+    from .report import SCHEMA_VERSION
+    from .stage2 import format_full_table
+
     progress = _progress_factory(not quiet, source)
     keep = {} if html_path else None
     try:
@@ -277,7 +377,130 @@ def convert(source, target, stage, max_degree, tolerance, as_json, overwrite, fa
     if as_json:
         doc = rep or {"schema_version": SCHEMA_VERSION, "file": source, "error": error}
         sys.stdout.write(json.dumps(doc, indent=1, default=_jsonable) + "\n")
-    sys.exit(run.exit_code)
+    return run.exit_code
+
+
+def _write_atomic(path: str, data: bytes) -> None:
+    import tempfile
+
+    folder = os.path.dirname(path) or "."
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _convert_batch(paths, output_dir, tol, stage, as_json, overwrite, fast, max_gap, max_deviation, quiet,
+                   recursive, fmt, jobs, timeout, max_memory, report_json, junit, executor, scheduler) -> int:
+    import time
+
+    from . import __version__
+    from .batch import batch_document, junit_xml, plan, run_dask, run_local, summary_table
+    from .errors import UsageError
+
+    if executor == "dask" and not scheduler:
+        _err("--executor dask needs --scheduler ADDRESS")
+        return EXIT_USAGE
+    if scheduler and executor != "dask":
+        _err("--scheduler needs --executor dask")
+        return EXIT_USAGE
+    n_jobs = jobs or _cores()
+    options = {"stage": stage, "tolerance": tol.approx_rel, "max_degree": tol.max_degree, "fast": fast,
+               "overwrite": overwrite, "recursive": recursive, "format": fmt, "output_dir": output_dir,
+               "jobs": n_jobs, "timeout": timeout, "max_memory": max_memory, "executor": executor,
+               "max_gap": max_gap, "max_deviation": max_deviation}
+    try:
+        todo, failed = plan(paths, output_dir, recursive, fmt, overwrite,
+                            {"tol": tol, "stage": stage, "fast": fast}, timeout, max_memory)
+        if not todo and not failed:
+            raise UsageError(f"no STEP or IGES file in {' '.join(paths)}"
+                             + ("" if recursive else " (--recursive descends into folders)"))
+        os.makedirs(output_dir, exist_ok=True)
+    except UsageError as exc:
+        _err(str(exc))
+        return EXIT_USAGE
+    except OSError as exc:
+        _err(f"{output_dir}: {exc.strerror or exc}")
+        return EXIT_USAGE
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(todo) + len(failed), unit="file", desc="convert", file=sys.stderr,
+               disable=True if quiet else None, dynamic_ncols=True)
+    current: list[str] = []
+
+    def say(line: str) -> None:
+        if bar.disable:
+            click.echo(line, err=True)
+        else:
+            bar.write(line, file=sys.stderr)
+
+    def on_start(job) -> None:
+        current.append(job.rel)
+        bar.set_postfix_str(", ".join(current[-2:]), refresh=True)
+
+    def on_done(res) -> None:
+        if res.rel in current:
+            current.remove(res.rel)
+        if res.report is not None and stage == "full":
+            res.gate = _convert_gates(res.report, max_gap, max_deviation)
+        if res.failure:
+            say(f"watertight: error: {res.reason}")
+            if res.traceback and os.environ.get("WATERTIGHT_DEBUG"):
+                say(res.traceback.rstrip())
+        elif res.gate:
+            say(f"watertight: error: {res.gate}")
+        bar.set_postfix_str(", ".join(current[-2:]) or res.rel, refresh=False)
+        bar.update(1)
+
+    t0 = time.perf_counter()
+    try:
+        for res in failed:
+            on_done(res)
+        if executor == "dask":
+            results = run_dask(todo, scheduler, on_start, on_done)
+        else:
+            results = run_local(todo, n_jobs, on_start, on_done)
+    except UsageError as exc:
+        bar.close()
+        _err(str(exc))
+        return EXIT_USAGE
+    finally:
+        bar.close()
+    wall = time.perf_counter() - t0
+    results = failed + results
+
+    run = RunReport()
+    for r in results:
+        run.add(FileOutcome(r.shown, r.report, r.reason if r.failure else None, r.gate))
+    if not quiet:
+        click.echo(summary_table(results, wall), err=True)
+    doc = batch_document(results, wall, options, f"watertight {__version__}")
+    text = json.dumps(doc, indent=1, default=_jsonable) + "\n"
+    try:
+        if report_json:
+            _write_atomic(report_json, text.encode())
+        if junit:
+            _write_atomic(junit, junit_xml(results, wall))
+    except OSError as exc:
+        _err(f"{exc.filename or report_json or junit}: cannot write the report ({exc.strerror or exc})")
+        return EXIT_FAILED
+    if as_json:
+        sys.stdout.write(text)
+    return run.exit_code
 
 
 def _convert_gates(rep: dict, max_gap, max_deviation) -> str | None:

@@ -34,3 +34,8 @@ class OutputError(WatertightError):
 
 class KernelError(WatertightError):
     """OCCT failed on an operation that should have worked (conversion, sewing, build)."""
+
+
+class UsageError(WatertightError):
+    """The command as given cannot run: conflicting options, an output that would overwrite an input,
+    two inputs that would write the same output, a missing optional dependency. The CLI exits 2."""

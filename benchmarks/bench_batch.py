@@ -1,0 +1,86 @@
+"""Batch conversion wall time: ``--jobs 2`` against ``--jobs 1`` on one folder.
+
+Run: ``python -m benchmarks.bench_batch [FOLDER] [--repeat N] [--recursive] [--stage full|untrim]``.
+FOLDER defaults to the bundled fixtures (their top level: the broken files in ``fixtures/broken``
+are left out). Each run is a fresh ``watertight convert FOLDER -o TMP -q --jobs N`` process, so the
+figure includes the start of the worker pool. The target for the corpus folder is a ratio of at
+most 0.65 (issue #6); on two cores the best possible is 0.5. ``run()`` returns the figures.
+
+Not part of ``make bench``: on the corpus it takes about an hour of CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
+
+
+def _convert(folder: Path, jobs: int, recursive: bool, stage: str) -> tuple[float, dict]:
+    with tempfile.TemporaryDirectory(prefix="bench_batch.") as tmp:
+        out, report = Path(tmp) / "out", Path(tmp) / "report.json"
+        cmd = [sys.executable, "-m", "watertight_cli.cli", "convert", str(folder), "-o", str(out), "-q",
+               "--jobs", str(jobs), "--stage", stage, "--report", str(report)]
+        if recursive:
+            cmd.append("--recursive")
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE, text=True)
+        wall = time.perf_counter() - t0
+        if proc.returncode not in (0, 1, 3) or not report.exists():
+            raise SystemExit(f"bench_batch: convert exited {proc.returncode}: {proc.stderr.strip()}")
+        return wall, json.loads(report.read_text())["totals"]
+
+
+def run(folder: Path = FIXTURES, repeat: int = 1, recursive: bool = False, stage: str = "full") -> dict:
+    """Median wall times of ``--jobs 1`` and ``--jobs 2`` (alternating runs) and their ratio."""
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    busy: dict[int, list[float]] = {1: [], 2: []}  # summed per-file worker wall times
+    cpu: dict[int, list[float]] = {1: [], 2: []}  # summed per-file worker CPU times
+    totals = {}
+    load = [os.getloadavg()[0]]
+    for _ in range(repeat):
+        for jobs in (1, 2):
+            wall, totals[jobs] = _convert(folder, jobs, recursive, stage)
+            walls[jobs].append(wall)
+            busy[jobs].append(totals[jobs]["time_s"])
+            cpu[jobs].append(totals[jobs]["cpu_s"])
+            load.append(os.getloadavg()[0])
+    t1, t2 = statistics.median(walls[1]), statistics.median(walls[2])
+    res = {"folder": str(folder), "files": totals[1]["files"], "ok": totals[1]["ok"],
+           "gate": totals[1]["gate"], "failed": totals[1]["failed"], "jobs1_s": t1,
+           "jobs2_s": t2, "ratio": t2 / t1, "runs": walls, "file_time_sums": busy,
+           "file_cpu_sums": cpu, "load": load, "cores": os.cpu_count()}
+    print(f"batch conversion of {res['files']} files in {folder} (stage {stage}; "
+          f"ok {res['ok']}, gate {res['gate']}, failed {res['failed']}; {res['cores']} cores):")
+    print(f"  --jobs 1: {t1:8.2f} s (median of {repeat})")
+    print(f"  --jobs 2: {t2:8.2f} s (median of {repeat})")
+    print(f"  ratio --jobs 2 / --jobs 1: {res['ratio']:.3f} (target <= 0.65)")
+    print(f"  summed per-file times: --jobs 1 {statistics.median(busy[1]):.1f} s, --jobs 2 "
+          f"{statistics.median(busy[2]):.1f} s; their CPU times: {statistics.median(cpu[1]):.1f} s and "
+          f"{statistics.median(cpu[2]):.1f} s (wall above CPU: the workers wait for a core)")
+    print("  1-minute load average before and after each run: " + ", ".join(f"{x:.1f}" for x in load)
+          + f" (other work on the machine distorts the ratio; {res['cores']} cores)")
+    return res
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.bench_batch", description=__doc__.splitlines()[0])
+    ap.add_argument("folder", nargs="?", type=Path, default=FIXTURES)
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--recursive", action="store_true")
+    ap.add_argument("--stage", choices=["full", "untrim"], default="full")
+    args = ap.parse_args(argv)
+    run(args.folder, args.repeat, args.recursive, args.stage)
+
+
+if __name__ == "__main__":
+    main()
