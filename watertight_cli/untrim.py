@@ -457,13 +457,6 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
             fr.local_cuts += 1
             slabs[k - 1].append(left)
         slabs[j - 1].append(rest)
-    # ends of the u-iso boundary pieces (edge vertices and edge-plan cuts on a slab line): a cell
-    # whose rung runs along such a line is cut there by a v-iso line, so each rung lies on one
-    # piece (one span of one edge) and stage 2 can put that edge's curve into it
-    # (only pieces whose edge parameter is affine in v: a rung runs linearly in t, so it carries the
-    # edge's parameter only then; other rungs are better left spanning their pieces)
-    iso_ends = np.array([[q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]]
-                         for q in fr.iso_pieces if _affine(q.H, 1) for k in (0, -1)]).reshape(-1, 2)
     for j, sp in enumerate(slabs):
         if not sp:
             continue
@@ -492,34 +485,9 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
             # of bottom and top), which may stand a sliver off the slab lines
             b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
             t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
-            knots = _rung_cuts(knots, iso_ends, (b0, t0), (b1, t1), bmin, tmax, ueps, veps)
             sides = [bside] + [_iso_side(_rung_u(b0, t0, c), _rung_u(b1, t1, c), c) for c in knots] + [tside]
             for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
                 yield ua, ubb, s0, s1
-
-
-def _rung_cuts(knots: list[float], iso_ends: np.ndarray, left, right, bmin: float, tmax: float,
-               ueps: float, veps: float) -> list[float]:
-    """The knot lines of a cell plus the v of every u-iso piece end on one of its rungs (strictly
-    inside the cell), less than ``veps`` apart merged (a knot wins)."""
-    extra = []
-    for b, t in (left, right):
-        if len(iso_ends) == 0 or abs(b[0] - t[0]) > 2 * ueps:
-            continue
-        lo, hi = min(b[1], t[1]), max(b[1], t[1])
-        v = iso_ends[:, 1]
-        on = (np.abs(iso_ends[:, 0] - b[0]) <= 2 * ueps) & (v > lo + veps) & (v < hi - veps)
-        extra.extend(float(v) for v in iso_ends[on, 1] if bmin + veps < v < tmax - veps)
-    if not extra:
-        return knots
-    out: list[float] = []
-    for v in sorted(set(knots) | set(extra)):
-        if out and v - out[-1] <= veps:
-            if v in knots and out[-1] not in knots:
-                out[-1] = v
-            continue
-        out.append(v)
-    return out
 
 
 def _rung_u(b: np.ndarray, t: np.ndarray, c: float) -> float:
@@ -589,16 +557,6 @@ def _phi_jacobian(U, V, W) -> np.ndarray:
     us, ut = (xs * w - x * ws) / w**2, (xt * w - x * wt) / w**2
     vs, vt = (ys * w - y * ws) / w**2, (yt * w - y * wt) / w**2
     return us * vt - ut * vs
-
-
-def _affine(H: np.ndarray, axis: int) -> bool:
-    """A piece's coordinate ``axis`` (0: u, 1: v) is affine in its parameter (polynomial, evenly
-    spaced control values)."""
-    x = H[:, axis] / H[:, 2]
-    k = len(x) - 1
-    even = x[0] + (x[-1] - x[0]) * np.arange(k + 1) / max(k, 1)
-    atol = 1e-12 * max(abs(x[-1] - x[0]), 1e-300)
-    return _polynomial(H) and bool(np.allclose(x, even, rtol=0.0, atol=atol))
 
 
 def _own_parameter(side: Side) -> bool:
