@@ -360,3 +360,25 @@ def test_corpus_folder_batch(tmp_path):
     for p in models + fixtures:
         assert (out / p.name).is_file()
     assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in src.iterdir()} == before
+
+
+def test_sigterm_leaves_no_worker_and_no_temporary_file(tmp_path):
+    """A cancelled CI job: SIGTERM to the batch kills its workers and removes their temporary files."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    src = make_input(tmp_path / "in", good={"open_sheet.step": "open_sheet.step"}, broken={})
+    out = tmp_path / "out"
+    env = dict(os.environ, WATERTIGHT_TEST_FAULT="hang:open_sheet.step")
+    proc = subprocess.Popen([sys.executable, "-m", "watertight_cli.cli", "convert", str(src), "-o", str(out),
+                             "-q", "--jobs", "1"], env=env, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (out.exists() and any(out.iterdir())):
+        time.sleep(0.2)  # the hanging worker has made its temporary file
+    assert out.exists() and any(out.iterdir()), "the worker never started"
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=30) == 128 + signal.SIGTERM
+    assert list(out.iterdir()) == []

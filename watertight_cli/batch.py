@@ -444,6 +444,7 @@ def run_local(jobs: list[Job], n_jobs: int, on_start: Callable[[Job], None] | No
         if on_done is not None:
             on_done(res)
 
+    previous = _raise_on_sigterm()
     try:
         while pending or running:
             while pending and len(running) < max(1, n_jobs):
@@ -507,7 +508,23 @@ def run_local(jobs: list[Job], n_jobs: int, on_start: Callable[[Job], None] | No
                 rn.proc.kill()
                 rn.proc.join()
             remove_temp_files(rn.job.dst)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return [results[i] for i in range(len(jobs))]
+
+
+def _raise_on_sigterm():
+    """SIGTERM (a CI job cancelled, ``kill``) raises SystemExit in the supervisor, so its cleanup runs
+    and no worker is left running; returns the previous handler (None off the main thread)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def stop(signum, frame):
+        raise SystemExit(128 + signum)
+
+    return signal.signal(signal.SIGTERM, stop)
 
 
 def run_one(job: Job) -> FileResult:
