@@ -122,6 +122,9 @@ def test_fixture_converts_with_invariants(tmp_path, name):
     assert rep["after"]["solids"] == rep["before"]["solids"]
     if rep["before"]["free_edges"] == 0:
         assert rep["after"]["free_edges"] == 0
+    for f in rep["faces"]:  # the measured deviation never exceeds the certified bound it replaces
+        assert f["deviation_after"] <= f["bound_after"]
+        assert f["deviation_after"] <= f["bound_allowed"]
     if rep["after"]["volume_change_rel"] is not None:
         assert rep["after"]["volume_change_rel"] <= max(1e-6, 20 * rep["before"]["gap_max"] / rep["diagonal"])
 

@@ -377,14 +377,14 @@ def distributions(rep: dict) -> str:
     ax = axes[2]
     key = "bound_after" if faces and "bound_after" in faces[0] else "bound"
     bound = np.array([f[key] for f in faces], dtype=float)
-    sampled = np.array([f["deviation_sampled"] for f in faces], dtype=float)
+    sampled = np.array([f.get("deviation_after", f["deviation_sampled"]) for f in faces], dtype=float)
     allowed = np.array([f.get("bound_allowed", rep.get("tolerance", 0.0)) for f in faces], dtype=float)
     floor = max(rep["diagonal"] * 1e-16, 1e-300)
     if len(faces):
         order = np.argsort(-bound, kind="stable")
         x = np.arange(len(faces))
         ax.bar(x, np.maximum(bound[order], floor), color="#c44e52", width=1.0, label="bound per face")
-        ax.plot(x, np.maximum(sampled[order], floor), ".", color="k", markersize=3, label="sampled")
+        ax.plot(x, np.maximum(sampled[order], floor), ".", color="k", markersize=3, label="measured")
         ax.plot(x, allowed[order], "_", color="#4c72b0", markersize=6, label="allowed (I4)")
         ax.set_yscale("log")
         ax.legend(fontsize=7, frameon=False)

@@ -33,7 +33,14 @@ from scipy.spatial import cKDTree
 
 from .core.approx import fit_curve
 from .core.bernstein import basis, product
-from .core.bezier import curve_segment, elevate_curve, elevate_surface, rational_curve_eval
+from .core.bezier import (
+    curve_segment,
+    elevate_curve,
+    elevate_surface,
+    rational_curve_eval,
+    rational_surface_eval_grid,
+    surface_eval_grid,
+)
 from .core.bspline import to_bezier
 from .core.reduce import reduce_curve
 from .model import Model
@@ -67,6 +74,10 @@ class FaceSubstitution:
     inner_reparam: int = 0  # shared inner sides left as they are: same line, other parameterization
     inner_t: int = 0  # inner sides made subdivisions of a neighbour's longer side (T-vertices)
     inner_mismatch: int = 0  # sides paired by their corners but further apart than a copy may move
+    # largest distance of a patch from its stage-1 patch at the same (s, t), sampled on a grid (the
+    # measured counterpart of ``moved``, which sums certified bounds of the successive steps)
+    moved_sampled: float = 0.0
+    deviation_sampled: float = 0.0  # per patch, sampled move plus its stage-1 bound; the largest
     elevated: int = 0  # patches whose degree was raised to take a shared curve
     corners_moved: int = 0  # corners moved onto a shared curve in patches with no side there
     problems: list[str] = field(default_factory=list)
@@ -490,6 +501,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
     for e, uses in users.items():
         curves.decide(e, uses)
     faces: list[FaceSubstitution] = []
+    stage1 = [[(p.ctrl, p.rational, p.bound) for p in fr.patches] for fr in result.faces]
     for fr, info in zip(result.faces, infos, strict=True):  # pass 2: substitute
         fs = FaceSubstitution(fr.face)
         faces.append(fs)
@@ -522,9 +534,25 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
         _share_inner(fr, info, labels, fs, tol, model.diagonal)
         if progress is not None:
             progress(1)
+    for fr, fs, before in zip(result.faces, faces, stage1, strict=True):
+        for p, (ctrl, rational, bound) in zip(fr.patches, before, strict=True):
+            move = _sampled_move(ctrl, rational, p.ctrl, p.rational)
+            fs.moved_sampled = max(fs.moved_sampled, move)
+            fs.deviation_sampled = max(fs.deviation_sampled, move + bound)
     uses_per_edge = {e.index: e.uses for e in model.edges}
     t_vertices = sum(1 for k, n in corner_uses.items() if n < 2 * uses_per_edge[k[1]])
     return Substitution(faces, used, t_vertices, curves.straddles)
+
+
+_MOVE_GRID = np.linspace(0.0, 1.0, 17)
+
+
+def _sampled_move(a: np.ndarray, a_rational: bool, b: np.ndarray, b_rational: bool) -> float:
+    """max |A(s, t) - B(s, t)| over a 17 x 17 grid (sides included) of two patch nets."""
+    g = _MOVE_GRID
+    pa = (rational_surface_eval_grid if a_rational else surface_eval_grid)(a, g, g)
+    pb = (rational_surface_eval_grid if b_rational else surface_eval_grid)(b, g, g)
+    return float(np.linalg.norm(pa - pb, axis=-1).max())
 
 
 def _snap_params(model: Model, users: dict, plan: dict, tol: Tolerances) -> dict[int, dict[float, float]]:
