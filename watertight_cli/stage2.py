@@ -50,10 +50,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     valid = is_valid(shape)
     times["build"] = time.perf_counter() - t
 
-    input_gap = {}
-    for g in ins.gaps:
-        for f in g.faces:
-            input_gap[f] = max(input_gap.get(f, 0.0), g.gap)
+    input_gap = _local_input_gaps(model, ins.gaps)
     allowed_base = tol.approx_rel * model.diagonal
     faces = []
     for fr, fs, frep in zip(result.faces, sub.faces, report["faces"], strict=True):
@@ -130,6 +127,26 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     report["ok"] = all(invariants.values())
     report["timings"] = times
     return report
+
+
+def _local_input_gaps(model, gaps) -> dict[int, float]:
+    """Per face, the input's own gap near it (I4's allowance): the largest gap of its edges and of
+    every edge that meets them at a vertex. A patch corner moves onto the model's vertex, so a
+    corner where an edge with a larger gap ends moves by that edge's gap, not the face's own."""
+    edge_gap = {g.edge: g.gap for g in gaps}
+    vertex_gap: dict[int, float] = {}
+    for e in model.edges:
+        for v in e.vertices:
+            vertex_gap[v] = max(vertex_gap.get(v, 0.0), edge_gap.get(e.index, 0.0))
+    out = {}
+    for f in model.faces:
+        worst = 0.0
+        for lp in f.loops:
+            for c in lp.coedges:
+                e = model.edges[c.edge]
+                worst = max(worst, edge_gap.get(e.index, 0.0), *(vertex_gap.get(v, 0.0) for v in e.vertices))
+        out[f.index] = worst
+    return out
 
 
 def _patch_volume(model, result, faces: list[int]) -> float:
