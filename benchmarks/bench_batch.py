@@ -24,7 +24,7 @@ from pathlib import Path
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 
 
-def _convert(folder: Path, jobs: int, recursive: bool, stage: str) -> tuple[float, dict]:
+def _convert(folder: Path, jobs: int, recursive: bool, stage: str, keep: Path | None = None) -> tuple[float, dict]:
     with tempfile.TemporaryDirectory(prefix="bench_batch.") as tmp:
         out, report = Path(tmp) / "out", Path(tmp) / "report.json"
         cmd = [sys.executable, "-m", "watertight_cli.cli", "convert", str(folder), "-o", str(out), "-q",
@@ -37,10 +37,14 @@ def _convert(folder: Path, jobs: int, recursive: bool, stage: str) -> tuple[floa
         wall = time.perf_counter() - t0
         if proc.returncode not in (0, 1, 3) or not report.exists():
             raise SystemExit(f"bench_batch: convert exited {proc.returncode}: {proc.stderr.strip()}")
+        if keep is not None:  # the run's full report, for per-file figures
+            keep.mkdir(parents=True, exist_ok=True)
+            (keep / f"jobs{jobs}.json").write_text(report.read_text())
         return wall, json.loads(report.read_text())["totals"]
 
 
-def run(folder: Path = FIXTURES, repeat: int = 1, recursive: bool = False, stage: str = "full") -> dict:
+def run(folder: Path = FIXTURES, repeat: int = 1, recursive: bool = False, stage: str = "full",
+        keep: Path | None = None) -> dict:
     """Median wall times of ``--jobs 1`` and ``--jobs 2`` (alternating runs) and their ratio."""
     walls: dict[int, list[float]] = {1: [], 2: []}
     busy: dict[int, list[float]] = {1: [], 2: []}  # summed per-file worker wall times
@@ -49,7 +53,7 @@ def run(folder: Path = FIXTURES, repeat: int = 1, recursive: bool = False, stage
     load = [os.getloadavg()[0]]
     for _ in range(repeat):
         for jobs in (1, 2):
-            wall, totals[jobs] = _convert(folder, jobs, recursive, stage)
+            wall, totals[jobs] = _convert(folder, jobs, recursive, stage, keep)
             walls[jobs].append(wall)
             busy[jobs].append(totals[jobs]["time_s"])
             cpu[jobs].append(totals[jobs]["cpu_s"])
@@ -78,8 +82,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--recursive", action="store_true")
     ap.add_argument("--stage", choices=["full", "untrim"], default="full")
+    ap.add_argument("--keep-reports", type=Path, default=None, metavar="DIR",
+                    help="write each run's --report JSON to DIR/jobsN.json")
     args = ap.parse_args(argv)
-    run(args.folder, args.repeat, args.recursive, args.stage)
+    run(args.folder, args.repeat, args.recursive, args.stage, args.keep_reports)
 
 
 if __name__ == "__main__":
