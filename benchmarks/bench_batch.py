@@ -24,7 +24,8 @@ from pathlib import Path
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 
 
-def _convert(folder: Path, jobs: int, recursive: bool, stage: str, keep: Path | None = None) -> tuple[float, dict]:
+def _convert(folder: Path, jobs: int, recursive: bool, stage: str,
+             keep: Path | None = None) -> tuple[float, dict]:
     with tempfile.TemporaryDirectory(prefix="bench_batch.") as tmp:
         out, report = Path(tmp) / "out", Path(tmp) / "report.json"
         cmd = [sys.executable, "-m", "watertight_cli.cli", "convert", str(folder), "-o", str(out), "-q",
