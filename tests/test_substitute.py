@@ -12,7 +12,7 @@ from watertight_cli.core.bezier import curve_eval, curve_segment
 from watertight_cli.substitute import _divide, _through, _weight_factor, substitute
 from watertight_cli.tolerances import Tolerances
 
-from .conftest import fixture_path
+from .conftest import corpus_path, fixture_path
 
 coef = st.floats(min_value=0.2, max_value=3.0, allow_nan=False)
 
@@ -185,3 +185,20 @@ def test_polynomial_patch_takes_a_rational_row_in_either_direction():
 
     row = p.ctrl[0, :]
     assert np.allclose(rational_curve_eval(row, s), rational_curve_eval(K, s), atol=1e-12)
+
+
+def test_no_blown_up_nets_on_marscapsule(tmp_path):
+    """A real file whose rational rows need a weight refit at degree 24: an ill-conditioned refit
+    had sent control points of a 13 mm part out to 36000 (read-back diagonal 78722). Such a patch
+    is now left as in stage 1 and reported; no net leaves the part's box."""
+    from watertight_cli.convert import convert_file
+    from watertight_cli.inspect import inspect
+
+    src = corpus_path("ovt__marsCapsule.igs")
+    out = tmp_path / "o.step"
+    rep = convert_file(str(src), str(out), Tolerances(), fast=True)
+    model = inspect(str(out), Tolerances()).model
+    for f in model.faces:
+        poles = f.surface.poles.reshape(-1, f.surface.poles.shape[-1])[:, :3]
+        assert np.abs(poles).max() < 20.0  # the part's vertices lie within 13.1 of the origin
+    assert any("could not take its shared curves" in p for p in rep["problems"])

@@ -59,6 +59,7 @@ SIDES = {
 _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
 _T_MERGE = 1e-6  # T-vertex parameters on a long side this close, at one 3D point, are one vertex
+_REFIT_GROWTH = 4.0  # a refitted net spanning more than this times the old one is refused
 _ELEVATE = 25  # elevation used to tighten control-net bounds of a patch's change
 _SAMPLES = 17  # grid per direction for the sampled change of patches whose weights changed
 
@@ -635,6 +636,13 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
             H[idx] = H[ii[c0[0]], ii[c0[1]]]
     if rational and not np.allclose(old[..., 3], H[..., 3], rtol=1e-12, atol=0.0):
         H = _refit(old, H)
+        size = float(np.ptp(_cartesian(old, True).reshape(-1, 3), axis=0).max())
+        if float(np.ptp(_cartesian(H, True).reshape(-1, 3), axis=0).max()) > _REFIT_GROWTH * size:
+            # an ill-conditioned refit (marsCapsule: nets of a 13 mm part out to 36000): the patch
+            # keeps its stage-1 net and the gap there, which the read-back measures
+            fs.problems.append(f"face {p.face}: a patch could not take its shared curves (the refit of "
+                               "its weights was ill-conditioned); left as in stage 1")
+            return
     moved, est = _change(old, H, rational)
     fs.moved = max(fs.moved, moved)
     fs.estimated = fs.estimated or est
