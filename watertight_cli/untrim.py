@@ -34,6 +34,7 @@ step can compare the patch with S(phi) evaluated independently.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -123,6 +124,9 @@ class FaceResult:
     # pieces that lie on a slab line (u-iso): the rungs of the cells beside them are on their edges
     iso_pieces: list = field(default_factory=list)
     eps: tuple[float, float] | None = None  # (u, v) distances below which uv values are one line
+    # seconds spent on the face: "cells" (pieces and cell decomposition), "reparam" (composition,
+    # approximation and compaction of the cells' patches)
+    times: dict[str, float] = field(default_factory=lambda: {"cells": 0.0, "reparam": 0.0})
 
 
 @dataclass
@@ -131,10 +135,17 @@ class UntrimResult:
     plan: dict[int, np.ndarray]
     tolerance: float
     max_degree: int
+    plan_time: float = 0.0  # seconds spent on the face geometries and the edge plan
 
     @property
     def patches(self) -> list[Patch]:
         return [p for f in self.faces for p in f.patches]
+
+    def timings(self) -> dict[str, float]:
+        """Seconds per sub-stage: plan, cells, reparam."""
+        return {"plan": self.plan_time,
+                "cells": sum(f.times["cells"] for f in self.faces),
+                "reparam": sum(f.times["reparam"] for f in self.faces)}
 
 
 # ------------------------------------------------------------------------------------- small helpers
@@ -1007,6 +1018,7 @@ def _monotone(p: _Piece, eps) -> list[_Piece]:
 
 def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
                 g: _FaceGeometry | None = None) -> FaceResult:
+    t0 = time.perf_counter()
     fr = FaceResult(face.index)
     g = g or _FaceGeometry(face, model.diagonal, tol)
     fr.eps = (g.ueps_lines, g.veps)
@@ -1014,10 +1026,16 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal)
     fr.closure = move + flat
     fr.approximated = bool(flat > g.snap)
+    reparam = 0.0
     for ua, ubb, bot, top in _cells(face, pieces, g, fr):
+        t = time.perf_counter()
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
+        reparam += time.perf_counter() - t
+    t = time.perf_counter()
     for p in fr.patches:
         p.ctrl = compact(p.ctrl, p.rational)
+    reparam += time.perf_counter() - t
+    fr.times = {"cells": time.perf_counter() - t0 - reparam, "reparam": reparam}
     if fr.snapped:
         fr.closure += g.snap
     approx = [p for p in fr.patches if p.approximated]
@@ -1029,8 +1047,10 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
 
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     """Stage 1 on a whole model. ``progress`` (optional) is called once per face."""
+    t0 = time.perf_counter()
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal)
+    plan_time = time.perf_counter() - t0
     faces = []
     for face, g in zip(model.faces, geoms, strict=True):
         try:
@@ -1041,7 +1061,7 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
             faces.append(fr)
         if progress is not None:
             progress(1)
-    return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree)
+    return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time)
 
 
 # ------------------------------------------------------------------------------------ evaluation
