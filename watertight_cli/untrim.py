@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from .core.bernstein import basis, product
+from .core.bernstein import basis, product, scalar_fn
 from .core.bezier import curve_segment, elevate_curve, surface_subbox
 from .core.bspline import surface_to_bezier, to_bezier
 from .core.compose import compose
@@ -173,7 +173,12 @@ def _coord_fn(H: np.ndarray, axis: int, c: float):
     """f(t) = X_axis(t) - c W(t): its roots are where the curve crosses the line coordinate = c."""
     coef = H[:, axis] - c * H[:, 2]
     k = H.shape[0] - 1
-    return lambda t: basis(k, np.atleast_1d(t)) @ coef
+
+    def f(t):
+        return basis(k, np.atleast_1d(t)) @ coef
+
+    f.scalar = scalar_fn(coef)  # the same polynomial at one float, for Brent's method
+    return f
 
 
 def _extremum_fn(H: np.ndarray, axis: int):
@@ -186,6 +191,8 @@ def _extremum_fn(H: np.ndarray, axis: int):
         b, bd = basis(k, t), basis(kd, t)
         return (bd @ D[:, axis]) * (b @ H[:, 2]) - (b @ H[:, axis]) * (bd @ D[:, 2])
 
+    # the same function as one Bernstein polynomial of degree 2k - 1, for Brent's method
+    f.scalar = scalar_fn(product(D[:, axis], H[:, 2]) - product(H[:, axis], D[:, 2]))
     return f
 
 
@@ -202,7 +209,8 @@ def _roots(f, lo: float = 0.0, hi: float = 1.0, n: int = _ROOT_SAMPLES) -> list[
         if ya == 0.0 and 0 < i:
             out.append(a)
         elif ya * yb < 0:
-            out.append(brentq(lambda x: float(f(x)[0]), a, b, xtol=1e-15, rtol=1e-15))
+            fs = getattr(f, "scalar", None) or (lambda x: float(f(x)[0]))
+            out.append(brentq(fs, a, b, xtol=1e-15, rtol=1e-15))
     return [r for r in out if lo < r < hi]
 
 
@@ -401,15 +409,15 @@ def _split(p: _Piece, t: float) -> tuple[_Piece, _Piece]:
 def _t_at_u(H: np.ndarray, u: float, axis: int = 0) -> float:
     """Parameter of a piece monotone in coordinate ``axis`` (u by default) where it reaches u
     (clamped to the piece)."""
-    f = _coord_fn(H, axis, u)
-    a, b = float(f(0.0)[0]), float(f(1.0)[0])
+    f = _coord_fn(H, axis, u).scalar
+    a, b = f(0.0), f(1.0)
     if a == 0.0:
         return 0.0
     if b == 0.0:
         return 1.0
     if a * b > 0:
         return 0.0 if abs(a) < abs(b) else 1.0
-    return brentq(lambda x: float(f(x)[0]), 0.0, 1.0, xtol=1e-15, rtol=1e-15)
+    return brentq(f, 0.0, 1.0, xtol=1e-15, rtol=1e-15)
 
 
 def _cluster(values: list[float], exact: set[float], eps: float) -> np.ndarray:

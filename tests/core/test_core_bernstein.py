@@ -6,7 +6,16 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from watertight_cli.core.bernstein import basis, binom, binom_table, from_power, product, product2, to_power
+from watertight_cli.core.bernstein import (
+    basis,
+    binom,
+    binom_table,
+    from_power,
+    product,
+    product2,
+    scalar_fn,
+    to_power,
+)
 from watertight_cli.core.bezier import curve_eval, surface_eval
 
 from .helpers import seeds
@@ -34,6 +43,19 @@ def test_basis_partition_of_unity_and_closed_form(seed, n):
     k = np.arange(n + 1)
     closed = binom_table(n)[n] * t[:, None] ** k * (1 - t[:, None]) ** (n - k)
     np.testing.assert_allclose(b, closed, rtol=1e-12, atol=1e-15)
+
+
+@SETTINGS
+@given(seeds, st.integers(0, 25))
+def test_scalar_fn_matches_basis(seed, n):
+    """The one-float evaluator agrees with the basis to rounding, and exactly at the ends."""
+    rng = np.random.default_rng(seed)
+    c = rng.normal(size=n + 1) * 10.0 ** rng.integers(-3, 4)
+    f = scalar_fn(c)
+    t = np.concatenate([[0.0, 0.5, 1.0], rng.random(40)])
+    got = np.array([f(x) for x in t])
+    np.testing.assert_allclose(got, basis(n, t) @ c, rtol=0, atol=1e-13 * np.abs(c).max())
+    assert f(0.0) == c[0] and f(1.0) == c[-1]
 
 
 @SETTINGS
