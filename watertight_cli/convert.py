@@ -51,7 +51,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
         raise WatertightError(f"{dst}: exists (use --overwrite to replace it)")
     times: dict[str, float] = {}
     t0 = time.perf_counter()
-    ins = inspect(src, tol)
+    ins = inspect(src, tol, array_gaps=False)
     model = ins.model
     times["read"] = time.perf_counter() - t0
 

@@ -43,19 +43,23 @@ class _Clock:
         self._t = now
 
 
-def inspect(path: str, tol: Tolerances) -> Inspection:
-    """Read, sew if needed, convert to arrays and measure one file. Raises WatertightError."""
+def inspect(path: str, tol: Tolerances, array_gaps: bool = True) -> Inspection:
+    """Read, sew if needed, convert to arrays and measure one file. Raises WatertightError.
+
+    ``array_gaps`` False skips measuring the gaps of the array model (``Inspection.array_gaps``
+    stays empty): only ``watertight report`` shows them, the conversion works from the kernel's.
+    """
     from .errors import KernelError
 
     try:
-        return _inspect(path, tol)
+        return _inspect(path, tol, array_gaps)
     except KernelError as exc:  # name the file in every message
         if str(path) in str(exc):
             raise
         raise KernelError(f"{path}: {exc}") from exc
 
 
-def _inspect(path: str, tol: Tolerances) -> Inspection:
+def _inspect(path: str, tol: Tolerances, want_array_gaps: bool = True) -> Inspection:
     from .occ.extract import build_model, prepare, sample_tracks
     from .occ.io import read_shape
 
@@ -69,7 +73,7 @@ def _inspect(path: str, tol: Tolerances) -> Inspection:
     model = build_model(shape, read, diag, sewing, str(path), tol)
     clock.lap("arrays")
     gaps = edge_gaps(model, tracks)
-    array_gaps = edge_gaps(model, model_tracks(model, tol))
+    array_gaps = edge_gaps(model, model_tracks(model, tol)) if want_array_gaps else []
     clock.lap("measure")
     if sewing is not None:
         # the input as read (faces apart): each face's own C vs S(pc), what other tools measure

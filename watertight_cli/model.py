@@ -69,7 +69,10 @@ class BSplineCurve:
         have pcurves that run slightly past their surface's knot range.
         """
         t = np.asarray(t, dtype=float)
-        h = BSpline(self.knots, self.homogeneous(), self.degree, extrapolate=True)(t)
+        # construct_fast: the checks of BSpline() cost more than the evaluation of a short curve
+        h = BSpline.construct_fast(np.ascontiguousarray(self.knots, dtype=float),
+                                   np.ascontiguousarray(self.homogeneous(), dtype=float), self.degree,
+                                   extrapolate=True)(t)
         return _cartesian(h, self.rational)
 
 
