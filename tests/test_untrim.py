@@ -316,3 +316,26 @@ def test_flatten_runs_straightens_a_near_vertical_stretch_of_a_long_pcurve():
     for a, b in zip(ps[:-1], ps[1:], strict=True):
         assert np.array_equal(a.H[-1], b.H[0])
     assert ps[0].H[0, 0] == 0.5 and ps[-1].H[-1, 0] == 0.5
+
+
+def test_transposed_face_is_the_same_face():
+    """Turning a face swaps u and v of its surface and pcurves: S(pc(w)) is unchanged at every
+    edge parameter, the normal flips and ``reversed`` with it, and turning twice gives it back."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.untrim import transpose_face
+
+    model = inspect(str(fixture_path("loft_minus_cylinder.step")), Tolerances(), array_gaps=False).model
+    for face in model.faces:
+        turned = transpose_face(face)
+        assert turned.reversed is not face.reversed
+        for a, b in zip((ce for lp in face.loops for ce in lp.coedges),
+                        (ce for lp in turned.loops for ce in lp.coedges), strict=True):
+            if a.pcurve is None:
+                continue
+            w = np.linspace(a.first, a.last, 7)
+            pa = face.surface.evaluate(a.pcurve.evaluate(w))
+            pb = turned.surface.evaluate(b.pcurve.evaluate(w))
+            np.testing.assert_allclose(pa, pb, rtol=0, atol=1e-12 * model.diagonal)
+        back = transpose_face(turned)
+        np.testing.assert_array_equal(back.surface.poles, face.surface.poles)
+        assert back.reversed is face.reversed and back.uv_bounds == face.uv_bounds

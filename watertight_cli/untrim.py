@@ -35,7 +35,7 @@ step can compare the patch with S(phi) evaluated independently.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import brentq
@@ -46,7 +46,7 @@ from .core.bspline import surface_to_bezier, to_bezier
 from .core.compose import compose
 from .core.reduce import reduce_curve, reduce_surface
 from .errors import WatertightError
-from .model import BSplineCurve, Face, Model
+from .model import BSplineCurve, BSplineSurface, Face, Loop, Model
 from .tolerances import Tolerances
 
 __all__ = ["Patch", "FaceResult", "UntrimResult", "untrim", "edge_plan", "UntrimError", "patch_points"]
@@ -1053,11 +1053,82 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     return fr
 
 
+_TURN_MIN = 4  # rung pieces a turn must save (``_should_transpose``)
+
+
+def transpose_face(face: Face) -> Face:
+    """The same face with u and v swapped: surface axes, pcurve coordinates and uv bounds. The
+    surface normal S_u x S_v changes sign, so ``reversed`` flips and the face's outward side stays."""
+    s = face.surface
+    surf = BSplineSurface(s.vdegree, s.udegree, s.vknots, s.uknots,
+                          np.ascontiguousarray(s.poles.transpose(1, 0, 2)),
+                          None if s.weights is None else np.ascontiguousarray(s.weights.T))
+    loops = tuple(Loop(tuple(ce if ce.pcurve is None else
+                             replace(ce, pcurve=replace(ce.pcurve,
+                                                        poles=np.ascontiguousarray(ce.pcurve.poles[:, ::-1])))
+                             for ce in loop.coedges), loop.outer)
+                  for loop in face.loops)
+    u0, u1, v0, v1 = face.uv_bounds
+    return replace(face, surface=surf, reversed=not face.reversed, loops=loops, uv_bounds=(v0, v1, u0, u1))
+
+
+def _should_transpose(face: Face, model: Model, plan: dict[int, np.ndarray], g: _FaceGeometry) -> bool:
+    """Whether the face's cells fit its edges better with u and v swapped.
+
+    Cells are bounded left and right by u-iso rungs, which run linearly in the cell parameter t.
+    A boundary edge along a u-iso line becomes the rungs of the cells beside it, and a rung can
+    take the edge's curve in stage 2 only when it lies on one piece of the edge plan (a plan cut
+    that is not on one of the face's own v-knot lines leaves a rung spanning two pieces) and the
+    edge's v is affine in its parameter on that piece (else the curve would slide along the rung).
+    v-iso edges are bottom and top sides, cut at every plan parameter and keeping their own
+    parameter. So each orientation is charged, over the edges that would be rungs in it, one per
+    such cut and one per piece that is not affine; the face is turned when turning costs less than
+    half as much and saves at least ``_TURN_MIN``. Faces with seams or poles keep their
+    orientation (their handling is tested as read).
+    """
+    cost = [0, 0]  # as is (u-iso edges are rungs), turned (v-iso edges are rungs)
+    for loop in face.loops:
+        for ce in loop.coedges:
+            e = model.edges[ce.edge]
+            if e.degenerate or e.seam:
+                return False
+            if ce.pcurve is None:
+                continue
+            uv = ce.pcurve.poles
+            if np.ptp(uv[:, 0]) <= g.ueps:
+                which, axis, lines, eps, speed = 0, 1, g.vb, g.veps, g.sv
+            elif np.ptp(uv[:, 1]) <= g.veps:
+                which, axis, lines, eps, speed = 1, 0, g.ub, g.ueps, g.su
+            else:
+                continue
+            cuts = np.asarray(plan.get(ce.edge, ()), dtype=float)
+            if len(cuts):
+                x = ce.pcurve.evaluate(cuts)[:, axis]
+                cost[which] += int(np.sum(np.abs(x[:, None] - lines[None, :]).min(axis=1) > eps))
+            breaks = np.concatenate([[ce.first], cuts, [ce.last]]) if ce.first <= ce.last else \
+                np.concatenate([[ce.last], cuts, [ce.first]])
+            lam = np.linspace(0.0, 1.0, 9)
+            w = breaks[:-1, None] + lam[None, :] * np.diff(breaks)[:, None]
+            x = ce.pcurve.evaluate(w.ravel())[:, axis].reshape(w.shape)
+            line = x[:, :1] + lam[None, :] * (x[:, -1:] - x[:, :1])
+            cost[which] += int(np.sum(np.abs(x - line).max(axis=1) * speed > g.snap))
+    return cost[0] - cost[1] >= _TURN_MIN and 2 * cost[1] < cost[0]
+
+
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
-    """Stage 1 on a whole model. ``progress`` (optional) is called once per face."""
+    """Stage 1 on a whole model. ``progress`` (optional) is called once per face.
+
+    A face whose u-iso boundary edges carry more edge-plan cuts than its v-iso ones is replaced in
+    ``model.faces`` by its transpose (``transpose_face``; see ``_should_transpose``) before its cells
+    are made: the rest of the pipeline reads the face from the model, so it sees the same surface
+    and pcurves as its patches."""
     t0 = time.perf_counter()
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal)
+    for i, face in enumerate(model.faces):
+        if _should_transpose(face, model, plan, geoms[i]):
+            model.faces[i] = transpose_face(face)
+            geoms[i] = _FaceGeometry(model.faces[i], model.diagonal, tol)
     plan_time = time.perf_counter() - t0
     faces = []
     for face, g in zip(model.faces, geoms, strict=True):
