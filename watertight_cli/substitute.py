@@ -127,6 +127,10 @@ class _Curves:
         self._fits: dict[int, list] = {}  # edge -> per span (polynomial net, sampled error)
         self._corners: dict[tuple, np.ndarray] = {}
         self.straddles = 0
+        # edges whose shared curve is the one midway between their two faces' boundaries:
+        # edge -> (breaks, per-piece polynomial nets), and the largest fit error per edge
+        self._mid: dict[int, tuple[np.ndarray, list[np.ndarray]]] = {}
+        self.mid_error: dict[int, float] = {}
 
     def spans(self, e: int):
         if e not in self._spans:
@@ -220,6 +224,66 @@ class _Curves:
         else:
             del self._fits[e]
 
+    def decide_midway(self, e: int, cuts: np.ndarray) -> bool:
+        """Use the curve midway between the two faces' boundaries S_f(pc_f(w)) on edge ``e`` when its
+        3D curve lies farther from both faces than the faces lie from each other (sampled at nine
+        points of every piece of the edge plan). The midway curve is fitted per plan piece
+        (``cuts`` are the plan's inner parameters) by the lowest-degree polynomial within
+        ``poly_tol``, then corrected affinely in w onto the model's vertices like C; every segment
+        and corner of the edge is cut from these fits. Returns whether it was chosen."""
+        edge = self.model.edges[e]
+        if edge.curve is None or edge.seam or edge.degenerate or len(edge.faces) != 2:
+            return False
+        tracks = []
+        for f in edge.faces:
+            pcs = [ce for loop in self.model.faces[f].loops for ce in loop.coedges
+                   if ce.edge == e and ce.pcurve is not None]
+            if len(pcs) != 1:
+                return False
+            tracks.append((self.model.faces[f].surface, pcs[0].pcurve))
+        breaks = np.concatenate([[edge.first], np.asarray(cuts, dtype=float), [edge.last]])
+
+        def boundary(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            a, b = (srf.evaluate(pc.evaluate(w)) for srf, pc in tracks)
+            return a, b
+
+        w = np.concatenate([np.linspace(x0, x1, 9) for x0, x1 in zip(breaks[:-1], breaks[1:], strict=True)])
+        a, b = boundary(w)
+        c = edge.curve.evaluate(w)
+        d_ab = float(np.linalg.norm(a - b, axis=1).max())
+        d_c = min(float(np.linalg.norm(c - a, axis=1).max()), float(np.linalg.norm(c - b, axis=1).max()))
+        # only where it pays: C at least twice as far from the nearer face as the faces are apart,
+        # and farther than ten fit tolerances (exact models keep their exact C)
+        if not (d_c > 2.0 * d_ab and d_c > 10.0 * self.poly_tol):
+            return False
+        nets, err = [], 0.0
+        for x0, x1 in zip(breaks[:-1], breaks[1:], strict=True):
+            def mid(t, x0=x0, x1=x1):
+                pa, pb = boundary(x0 + np.asarray(t, dtype=float) * (x1 - x0))
+                return 0.5 * (pa + pb)
+
+            fit = None
+            for q in range(1, self.max_degree + 1):
+                fit = fit_curve(mid, q, self.poly_tol)
+                if fit is not None:
+                    break
+            if fit is None:
+                return False
+            nets.append(fit[0])
+            err = max(err, fit[1])
+        # onto the model's vertices, affinely in w (as ``exact`` does for C)
+        v = self.model.vertices[list(edge.vertices)]
+        d0, d1 = v[0] - nets[0][0], v[1] - nets[-1][-1]
+        span = edge.last - edge.first
+        for i, (x0, x1) in enumerate(zip(breaks[:-1], breaks[1:], strict=True)):
+            lam = (np.array([x0, x1]) - edge.first) / span
+            D = np.outer(1.0 - lam, d0) + np.outer(lam, d1)
+            K = nets[i]
+            nets[i] = K + (elevate_curve(D, K.shape[0] - 2) if K.shape[0] > 2 else D)
+        self._mid[e] = (breaks, nets)
+        self.mid_error[e] = err + max(float(np.linalg.norm(d0)), float(np.linalg.norm(d1)))
+        return True
+
     def _polynomial(self, K: np.ndarray):
         xyz = lambda t: rational_curve_eval(K, t)  # noqa: E731
         for q in range(max(1, K.shape[0] - 1), self.max_degree + 1):
@@ -234,7 +298,14 @@ class _Curves:
         K = self._k.get(key)
         if K is None:
             lo, hi = key[1], key[2]
-            if e in self._fits:
+            if e in self._mid:
+                br, nets = self._mid[e]
+                j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(nets) - 1))
+                x0, x1 = br[j], br[j + 1]
+                if lo < x0 - 1e-9 * (x1 - x0) or hi > x1 + 1e-9 * (x1 - x0):
+                    self.straddles += 1
+                K = curve_segment(nets[j], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
+            elif e in self._fits:
                 br = self.spans(e)[0]
                 j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(br) - 2))
                 x0, x1 = br[j], br[j + 1]
@@ -305,6 +376,12 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) ->
             continue
         if p.degenerate:
             return _Ref(p.edge, p.w0, p.w1, pole=True)
+        v = p.H[:, 1] / p.H[:, 2]
+        even = v[0] + (v[-1] - v[0]) * np.arange(len(v)) / max(len(v) - 1, 1)
+        if p.H.shape[0] > 2 and (not np.allclose(p.H[:, 2], p.H[0, 2]) or np.abs(v - even).max() > eps[1]):
+            # the rung runs linearly in v, the edge's parameter does not: the curve would slide
+            # along the side (by up to this v offset times the surface's speed); left unshared
+            return None
         ws = [p.w0 + _t_at_u(p.H, float(x[1]), axis=1) * (p.w1 - p.w0) for x in (a, b)]
         # snap to the piece's ends, so corners at plan parameters get the plan's floats
         ws = [p.w0 if abs(x[1] - uv[0, 1]) <= eps[1] else p.w1 if abs(x[1] - uv[1, 1]) <= eps[1] else w
@@ -501,7 +578,8 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
     users = {e: [(snap[e].get(lo, lo), snap[e].get(hi, hi), r, size) for lo, hi, r, size in uses]
              for e, uses in users.items()}
     for e, uses in users.items():
-        curves.decide(e, uses)
+        if not curves.decide_midway(e, result.plan.get(e, np.zeros(0))):
+            curves.decide(e, uses)
     faces: list[FaceSubstitution] = []
     stage1 = [[(p.ctrl, p.rational, p.bound) for p in fr.patches] for fr in result.faces]
     for fr, info in zip(result.faces, infos, strict=True):  # pass 2: substitute
@@ -526,7 +604,9 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                         corner_uses[k] = corner_uses.get(k, 0) + 1
                 rows[name] = curves.segment(ref.edge, ref.wa, ref.wb)
                 corners[c0], corners[c1] = ka, kb
-                used[ref.edge] = "3d curve, polynomial fit" if ref.edge in curves.fit_error else "3d curve"
+                used[ref.edge] = ("midway between the faces" if ref.edge in curves.mid_error
+                                  else "3d curve, polynomial fit" if ref.edge in curves.fit_error
+                                  else "3d curve")
                 fs.moved = max(fs.moved, curves.fit_error.get(ref.edge, 0.0))
             if corners:
                 _apply(p, rows, corners, curves, fs, tol)
