@@ -15,6 +15,12 @@ FIXTURES = ROOT / "fixtures"
 CORPUS = ROOT.parent / "shared" / "corpus"
 
 
+@pytest.fixture(autouse=True)
+def _private_duration_cache(tmp_path_factory, monkeypatch):
+    """Batch runs keep per-file times in a user cache; tests keep theirs in a temporary folder."""
+    monkeypatch.setenv("WATERTIGHT_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+
+
 def fixture_path(name: str) -> Path:
     path = FIXTURES / name
     if not path.exists():

@@ -382,3 +382,29 @@ def test_sigterm_leaves_no_worker_and_no_temporary_file(tmp_path):
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=30) == 128 + signal.SIGTERM
     assert list(out.iterdir()) == []
+
+
+def test_durations_order_the_next_batch(tmp_path):
+    """Files start longest first: by their last run's time when known, else by size (scaled by the
+    batch's median seconds per byte); the times live in WATERTIGHT_CACHE_DIR (conftest)."""
+    from watertight_cli.batch import FileResult, Job, durations_file, estimates, record_durations
+
+    paths = []
+    for name, size in (("big.step", 1000), ("small.step", 10), ("new.step", 2000)):
+        p = tmp_path / name
+        p.write_bytes(name.encode() * (size // len(name)) + b"x" * (size % len(name)))
+        paths.append(p)
+    jobs = [Job(str(p), str(p), p.name, str(tmp_path / "out" / p.name), p.name, {"stage": "full"})
+            for p in paths]
+    assert estimates(jobs) == [1000.0, 10.0, 2000.0]  # nothing known yet: by size
+    record_durations(jobs[:2], [FileResult("big", "big", "big", report={}, elapsed=1.0),
+                                FileResult("small", "small", "small", report={}, elapsed=50.0)])
+    assert durations_file().is_file()
+    est = estimates(jobs)
+    assert est[:2] == [1.0, 50.0]  # the small file took longer: it starts first
+    assert est[2] == pytest.approx(2000 * (1 / 1000 + 50 / 10) / 2)  # median seconds per byte
+    # a failed file is not recorded, and another stage is another key
+    record_durations(jobs[2:], [FileResult("new", "new", "new", failure="crash", elapsed=3.0)])
+    assert estimates(jobs)[2] == pytest.approx(2000 * (1 / 1000 + 50 / 10) / 2)
+    other = [Job(j.shown, j.src, j.rel, j.dst, j.dst_shown, {"stage": "untrim"}) for j in jobs]
+    assert estimates(other) == [1000.0, 10.0, 2000.0]

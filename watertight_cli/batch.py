@@ -15,6 +15,13 @@ worker process, so both executors isolate a file the same way:
   output it wrote before it died (unverified); outputs are otherwise written atomically by
   ``convert_file``.
 
+Order: the longest file first, so that no worker is left with a long file while the others idle.
+Each successful conversion's wall time is kept in a small cache (``durations.json`` in
+``$WATERTIGHT_CACHE_DIR``, else ``$XDG_CACHE_HOME/watertight`` or ``~/.cache/watertight``), keyed by
+the input's SHA-256 and the stage; a file seen before is placed by its last time, a new one by its
+size times the batch's median seconds per byte (by size alone when nothing is known). A CI job that
+converts the same folder on every commit thus schedules from the previous run's times.
+
 This module imports neither OCP nor click: the worker imports ``convert_file`` when it runs, and the
 CLI turns the results (``FileResult``) into messages, reports and the exit code.
 
@@ -30,10 +37,14 @@ from __future__ import annotations
 
 import contextlib
 import glob
+import hashlib
+import json
 import multiprocessing as mp
 import os
 import re
 import signal
+import statistics
+import tempfile
 import threading
 import time
 import uuid
@@ -324,6 +335,76 @@ def _size(path: str) -> int:
         return 0
 
 
+CACHE_ENV = "WATERTIGHT_CACHE_DIR"
+
+
+def durations_file() -> Path:
+    """Where the per-file wall times of earlier batches are kept (see the module doc)."""
+    base = os.environ.get(CACHE_ENV)
+    if not base:
+        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "watertight")
+    return Path(base) / "durations.json"
+
+
+def _content_key(job: Job) -> str | None:
+    h = hashlib.sha256()
+    try:
+        with open(job.src, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return None
+    return f"{h.hexdigest()}:{job.options.get('stage', 'full')}"
+
+
+def _load_durations() -> dict[str, float]:
+    try:
+        data = json.loads(durations_file().read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(data, dict):
+        return {}
+    return {k: float(v) for k, v in data.items() if isinstance(v, int | float)}
+
+
+def estimates(jobs: list[Job]) -> list[float]:
+    """Expected seconds (or, when no file of the batch was seen before, bytes) per job: the order
+    in which to start them is by this, largest first."""
+    known = _load_durations()
+    times = [known.get(k) if k else None for k in (_content_key(j) for j in jobs)]
+    sizes = [_size(j.src) for j in jobs]
+    rates = [t / s for t, s in zip(times, sizes, strict=True) if t is not None and s > 0]
+    if not rates:
+        return [float(s) for s in sizes]
+    rate = statistics.median(rates)
+    return [t if t is not None else s * rate for t, s in zip(times, sizes, strict=True)]
+
+
+def record_durations(jobs: list[Job], results: list[FileResult]) -> None:
+    """Keep the wall times of the files that converted (for the order of the next batch). Best
+    effort: a cache that cannot be written is skipped silently."""
+    fresh = {}
+    for job, res in zip(jobs, results, strict=True):
+        if res.failure is None and res.elapsed > 0:
+            key = _content_key(job)
+            if key:
+                fresh[key] = round(res.elapsed, 3)
+    if not fresh:
+        return
+    path = durations_file()
+    try:
+        data = _load_durations()
+        data.update(fresh)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".durations.", dir=path.parent)
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh)
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError, UnboundLocalError):
+            os.unlink(tmp)
+
+
 def _rss(pid: int) -> int | None:
     try:
         with open(f"/proc/{pid}/statm") as fh:
@@ -433,8 +514,9 @@ def run_local(jobs: list[Job], n_jobs: int, on_start: Callable[[Job], None] | No
     ctx = _context()
     fault = os.environ.get(FAULT_ENV, "")
     debug = bool(os.environ.get("WATERTIGHT_DEBUG"))
-    # largest input first: a big file started last would keep one worker busy while the others idle
-    pending = deque(sorted(enumerate(jobs), key=lambda ij: -_size(ij[1].src)))
+    # longest first: a long file started last would keep one worker busy while the others idle
+    est = estimates(jobs)
+    pending = deque(sorted(enumerate(jobs), key=lambda ij: -est[ij[0]]))
     running: dict[int, _Running] = {}  # by index
     results: dict[int, FileResult] = {}
 
@@ -552,13 +634,14 @@ def run_dask(jobs: list[Job], scheduler: str, on_start: Callable[[Job], None] | 
     try:
         futures = {}
         run_id = uuid.uuid4().hex[:8]
+        est = estimates(jobs)
         for i, job in enumerate(jobs):
             job.fault = os.environ.get(FAULT_ENV, "")
             job.debug = bool(os.environ.get("WATERTIGHT_DEBUG"))
             Path(job.dst).parent.mkdir(parents=True, exist_ok=True)
             key = f"watertight-{run_id}-{i}-{job.rel}"
-            # largest input first (a higher priority runs earlier), as run_local does
-            futures[client.submit(run_one, job, pure=False, key=key, priority=_size(job.src))] = i
+            # longest first (a higher priority runs earlier), as run_local does
+            futures[client.submit(run_one, job, pure=False, key=key, priority=est[i])] = i
             if on_start is not None:
                 on_start(job)
         for fut in as_completed(futures):

@@ -412,7 +412,7 @@ def _convert_batch(paths, output_dir, tol, stage, as_json, overwrite, fast, max_
     import time
 
     from . import __version__
-    from .batch import batch_document, junit_xml, plan, run_dask, run_local, summary_table
+    from .batch import batch_document, junit_xml, plan, record_durations, run_dask, run_local, summary_table
     from .errors import UsageError
 
     if executor == "dask" and not scheduler:
@@ -485,6 +485,7 @@ def _convert_batch(paths, output_dir, tol, stage, as_json, overwrite, fast, max_
     finally:
         bar.close()
     wall = time.perf_counter() - t0
+    record_durations(todo, results)
     results = failed + results
 
     run = RunReport()
