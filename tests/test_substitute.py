@@ -212,6 +212,8 @@ def test_exact_models_keep_the_exact_edge_curve(tmp_path):
     rep = convert_file(str(fixture_path("loft_minus_cylinder.step")), str(tmp_path / "o.step"), Tolerances(),
                        fast=True)
     assert "midway between the faces" not in rep["shared_curves"]
+    assert set(rep["shared_curve_per_edge"].values()) <= {"3d curve", "3d curve, polynomial fit", "pole"}
+    assert len(rep["shared_curve_per_edge"]) == sum(rep["shared_curves"].values())
 
 
 def test_occ22470_rungs_and_midway_curves(tmp_path):

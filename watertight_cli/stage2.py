@@ -88,6 +88,9 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "histogram": {str(k): v for k, v in sorted(Counter(degrees).items())},
         },
         "shared_curves": dict(Counter(sub.curves.values())),
+        # per input edge (its index): "3d curve", "3d curve, polynomial fit", "midway between the
+        # faces" or "pole"; edges absent here kept their stage-1 sides (no side could take a curve)
+        "shared_curve_per_edge": {str(e): kind for e, kind in sorted(sub.curves.items())},
         "t_junctions": sub.t_vertices + sum(fs.inner_unpaired for fs in sub.faces),
         "t_vertices_on_edges": sub.t_vertices,
         "substitution_move_max": sub.moved,

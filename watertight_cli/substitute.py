@@ -87,7 +87,8 @@ class FaceSubstitution:
 @dataclass
 class Substitution:
     faces: list[FaceSubstitution]
-    curves: dict[int, str]  # edge -> which shared curve it got: "3d curve" or "pole"
+    curves: dict[int, str]  # edge -> which shared curve it got ("3d curve", "3d curve, polynomial
+    # fit", "midway between the faces" or "pole")
     t_vertices: int = 0  # corners on an edge that only some of the edge's faces have
     straddles: int = 0  # sides whose interval crosses a knot of the edge's curve (should be 0)
 
