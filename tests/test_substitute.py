@@ -221,12 +221,12 @@ def test_occ22470_rungs_and_midway_curves(tmp_path):
     so those edges become bottom and top sides and take their shared curve (before: 155 output
     edges kept gaps up to 4e-7 where rungs spanned 22-25 plan pieces); edges whose 3D curve lies
     0.0046 from both faces while the faces are 3e-4 apart take the midway curve (before: faces
-    moved by 0.0073, over their allowance). Measured on the written file."""
+    moved by 0.0073, over their allowance); a cell whose rung runs along two u-iso edges is cut at
+    their vertex (before: one edge kept a 3.9e-10 gap). Measured on the written file: all of
+    I1-I4 and validity hold."""
     from watertight_cli.convert import convert_file
 
     rep = convert_file(str(corpus_path("occt__occ22470.igs")), str(tmp_path / "o.step"), Tolerances())
-    inv = rep["invariants"]
-    assert inv["I1"] and inv["I3"] and inv["I4"] and inv["valid"], inv
+    assert rep["invariants"] == {"I1": True, "I2": True, "I3": True, "I4": True, "valid": True}
     assert rep["after"]["free_edges"] == 0 and rep["after"]["solids"] == rep["before"]["solids"]
-    assert rep["after"]["gap_max"] <= 1e-9 * rep["diagonal"]  # the judge's line; I2's is 1e-12
     assert rep["shared_curves"].get("midway between the faces", 0) >= 1

@@ -476,6 +476,20 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
             fr.local_cuts += 1
             slabs[k - 1].append(left)
         slabs[j - 1].append(rest)
+    # vertices on slab lines: where two u-iso boundary edges meet on one line, a cell whose rung
+    # runs along both is cut there by a v-iso line, so each rung lies on one edge and stage 2 can
+    # put that edge's curve into it (the cuts at plan parameters inside an edge are not made: they
+    # multiply cells, and turning the face, ``_should_transpose``, serves those)
+    ranges = {ce.edge: (min(ce.first, ce.last), max(ce.first, ce.last))
+              for lp in face.loops for ce in lp.coedges}
+    vertex_ends = []
+    for q in fr.iso_pieces:
+        lo, hi = ranges.get(q.edge, (np.inf, -np.inf))
+        tol_w = 1e-9 * max(hi - lo, 1e-300)
+        for k, w in ((0, q.w0), (-1, q.w1)):
+            if abs(w - lo) <= tol_w or abs(w - hi) <= tol_w:
+                vertex_ends.append((q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]))
+    vertex_ends = np.array(vertex_ends).reshape(-1, 2)
     for j, sp in enumerate(slabs):
         if not sp:
             continue
@@ -504,9 +518,36 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
             # of bottom and top), which may stand a sliver off the slab lines
             b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
             t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
+            knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bmin, tmax, ueps, veps)
             sides = [bside] + [_iso_side(_rung_u(b0, t0, c), _rung_u(b1, t1, c), c) for c in knots] + [tside]
             for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
                 yield ua, ubb, s0, s1
+
+
+def _vertex_cuts(knots: list[float], ends: np.ndarray, left, right, bmin: float, tmax: float,
+                 ueps: float, veps: float) -> list[float]:
+    """A cell's knot lines plus the v of every vertex in ``ends`` that lies on one of its rungs
+    strictly inside it; values closer than ``veps`` merge (a knot line wins)."""
+    if len(ends) == 0:
+        return knots
+    extra = []
+    for b, t in (left, right):
+        if abs(b[0] - t[0]) > 2 * ueps:
+            continue
+        lo, hi = min(b[1], t[1]), max(b[1], t[1])
+        v = ends[:, 1]
+        on = (np.abs(ends[:, 0] - b[0]) <= 2 * ueps) & (v > lo + veps) & (v < hi - veps)
+        extra.extend(float(x) for x in v[on] if bmin + veps < x < tmax - veps)
+    if not extra:
+        return knots
+    out: list[float] = []
+    for v in sorted(set(knots) | set(extra)):
+        if out and v - out[-1] <= veps:
+            if v in knots and out[-1] not in knots:
+                out[-1] = v
+            continue
+        out.append(v)
+    return out
 
 
 def _rung_u(b: np.ndarray, t: np.ndarray, c: float) -> float:
