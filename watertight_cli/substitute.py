@@ -258,15 +258,27 @@ class _Curves:
         if not (d_c > 2.0 * d_ab and d_c > 10.0 * self.poly_tol):
             return False
         nets, err = [], 0.0
+        # per piece: the midway points at Chebyshev-Lobatto nodes (fit) and on a uniform grid
+        # (check), evaluated once; then the lowest degree whose least-squares fit with the ends
+        # held is within poly_tol on the check grid
+        n = 8 * (self.max_degree + 1)
+        tc = 0.5 - 0.5 * np.cos(np.pi * np.arange(n) / (n - 1))
+        te = np.linspace(0.0, 1.0, 401)
         for x0, x1 in zip(breaks[:-1], breaks[1:], strict=True):
-            def mid(t, x0=x0, x1=x1):
-                pa, pb = boundary(x0 + np.asarray(t, dtype=float) * (x1 - x0))
-                return 0.5 * (pa + pb)
-
+            pa, pb = boundary(x0 + np.concatenate([tc, te]) * (x1 - x0))
+            mid = 0.5 * (pa + pb)
+            xc, xe = mid[:n], mid[n:]
             fit = None
             for q in range(1, self.max_degree + 1):
-                fit = fit_curve(mid, q, self.poly_tol)
-                if fit is not None:
+                bc = basis(q, tc)
+                ctrl = np.empty((q + 1, 3))
+                ctrl[0], ctrl[-1] = xc[0], xc[-1]
+                if q > 1:
+                    rhs = xc - np.outer(bc[:, 0], ctrl[0]) - np.outer(bc[:, -1], ctrl[-1])
+                    ctrl[1:-1] = np.linalg.lstsq(bc[:, 1:-1], rhs, rcond=None)[0]
+                dev = float(np.linalg.norm(basis(q, te) @ ctrl - xe, axis=1).max())
+                if dev <= self.poly_tol:
+                    fit = (ctrl, dev)
                     break
             if fit is None:
                 return False

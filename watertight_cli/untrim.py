@@ -445,7 +445,7 @@ def _as_side(p: _Piece, veps: float) -> Side:
     return Side(p.H, iso, p.edge, p.w0, p.w1, p.degenerate, p.pcurve)
 
 
-def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
+def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, vertex_cuts: bool = True):
     """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc)."""
     ub, vb, ueps, veps = g.ub, g.vb, g.ueps_lines, g.veps
     ends = []
@@ -489,7 +489,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult):
         for k, w in ((0, q.w0), (-1, q.w1)):
             if abs(w - lo) <= tol_w or abs(w - hi) <= tol_w:
                 vertex_ends.append((q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]))
-    vertex_ends = np.array(vertex_ends).reshape(-1, 2)
+    vertex_ends = np.array(vertex_ends if vertex_cuts else []).reshape(-1, 2)
     for j, sp in enumerate(slabs):
         if not sp:
             continue
@@ -1066,7 +1066,7 @@ def _monotone(p: _Piece, eps) -> list[_Piece]:
 
 
 def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
-                g: _FaceGeometry | None = None) -> FaceResult:
+                g: _FaceGeometry | None = None, vertex_cuts: bool = True) -> FaceResult:
     t0 = time.perf_counter()
     fr = FaceResult(face.index)
     g = g or _FaceGeometry(face, model.diagonal, tol)
@@ -1076,7 +1076,7 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     fr.closure = move + flat
     fr.approximated = bool(flat > g.snap)
     reparam = 0.0
-    for ua, ubb, bot, top in _cells(face, pieces, g, fr):
+    for ua, ubb, bot, top in _cells(face, pieces, g, fr, vertex_cuts):
         t = time.perf_counter()
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
         reparam += time.perf_counter() - t
@@ -1095,6 +1095,27 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
 
 
 _TURN_MIN = 4  # rung pieces a turn must save (``_should_transpose``)
+
+
+_TURN_GROWTH = 2.0  # a turned face may have at most this many times the patches of the face as is
+
+
+def _face_or_problem(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
+                     g: _FaceGeometry) -> FaceResult:
+    """The face's stage-1 result, or a result carrying the error as its problem. A face whose
+    cells fold with the cuts at vertices on rungs (``_cells``) is made again without them."""
+    fr = None
+    for vertex_cuts in (True, False):
+        try:
+            this = untrim_face(face, model, plan, tol, g, vertex_cuts)
+        except UntrimError as exc:
+            this = FaceResult(face.index)
+            this.problems.append(str(exc))
+        if fr is None or len(this.problems) < len(fr.problems):
+            fr = this
+        if not fr.problems:
+            break
+    return fr
 
 
 def transpose_face(face: Face) -> Face:
@@ -1159,26 +1180,25 @@ def _should_transpose(face: Face, model: Model, plan: dict[int, np.ndarray], g: 
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     """Stage 1 on a whole model. ``progress`` (optional) is called once per face.
 
-    A face whose u-iso boundary edges carry more edge-plan cuts than its v-iso ones is replaced in
-    ``model.faces`` by its transpose (``transpose_face``; see ``_should_transpose``) before its cells
-    are made: the rest of the pipeline reads the face from the model, so it sees the same surface
-    and pcurves as its patches."""
+    A face that ``_should_transpose`` picks is also decomposed turned (``transpose_face``); when the
+    turned cells have no problem (no fold left) and at most ``_TURN_GROWTH`` times the patches, the
+    turned face replaces the face in ``model.faces``: the rest of the pipeline reads the face from
+    the model, so it sees the same surface and pcurves as its patches."""
     t0 = time.perf_counter()
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal)
-    for i, face in enumerate(model.faces):
-        if _should_transpose(face, model, plan, geoms[i]):
-            model.faces[i] = transpose_face(face)
-            geoms[i] = _FaceGeometry(model.faces[i], model.diagonal, tol)
+    turn = [_should_transpose(face, model, plan, g) for face, g in zip(model.faces, geoms, strict=True)]
     plan_time = time.perf_counter() - t0
     faces = []
-    for face, g in zip(model.faces, geoms, strict=True):
-        try:
-            faces.append(untrim_face(face, model, plan, tol, g))
-        except UntrimError as exc:
-            fr = FaceResult(face.index)
-            fr.problems.append(str(exc))
-            faces.append(fr)
+    for i, (face, g) in enumerate(zip(model.faces, geoms, strict=True)):
+        fr = _face_or_problem(face, model, plan, tol, g)
+        if turn[i]:
+            # the turned face is kept only when its cells come out clean and not much more numerous
+            turned = transpose_face(face)
+            frt = _face_or_problem(turned, model, plan, tol, _FaceGeometry(turned, model.diagonal, tol))
+            if not frt.problems and (fr.problems or len(frt.patches) <= _TURN_GROWTH * len(fr.patches)):
+                model.faces[i], fr = turned, frt
+        faces.append(fr)
         if progress is not None:
             progress(1)
     return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time)
