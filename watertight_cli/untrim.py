@@ -21,6 +21,12 @@ The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
    surface span is cut to the cell's box and its degree reduced, the pieces' degree is reduced with
    their ends held, and if the certified bound exceeds the tolerance the cell is halved and tried again.
 
+Orientation: rungs run linearly in the cell parameter, so a boundary edge along a u-iso line can take
+its shared curve in stage 2 only where its rung lies on one plan piece and carries the edge's
+parameter. A face whose u-iso edges would leave clearly more such rungs unshared than its v-iso edges
+is decomposed turned (u and v swapped, ``transpose_face``) and kept so when that decomposes cleanly;
+and a cell whose rung runs along two u-iso edges is cut at their vertex.
+
 Real files need repairs before step 2, each bounded and added to the face's bound: loops whose
 consecutive pcurves leave uv gaps are closed (``_close_loops``); pcurves, or stretches of them, that
 wiggle around an iso-line within half the tolerance become exact iso-lines (``_flatten``); pieces that
