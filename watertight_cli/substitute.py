@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .core.approx import fit_curve
+from .core.approx import fit_curve, fit_points
 from .core.bernstein import basis, product
 from .core.bezier import (
     curve_segment,
@@ -270,12 +270,7 @@ class _Curves:
             xc, xe = mid[:n], mid[n:]
             fit = None
             for q in range(1, self.max_degree + 1):
-                bc = basis(q, tc)
-                ctrl = np.empty((q + 1, 3))
-                ctrl[0], ctrl[-1] = xc[0], xc[-1]
-                if q > 1:
-                    rhs = xc - np.outer(bc[:, 0], ctrl[0]) - np.outer(bc[:, -1], ctrl[-1])
-                    ctrl[1:-1] = np.linalg.lstsq(bc[:, 1:-1], rhs, rcond=None)[0]
+                ctrl = fit_points(tc, xc, q)
                 dev = float(np.linalg.norm(basis(q, te) @ ctrl - xe, axis=1).max())
                 if dev <= self.poly_tol:
                     fit = (ctrl, dev)

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import brentq
 
+from .core.approx import fit_points
 from .core.bernstein import basis, product, scalar_fn
 from .core.bezier import curve_segment, elevate_curve, surface_subbox
 from .core.bspline import surface_to_bezier, to_bezier
@@ -913,12 +914,7 @@ def _reduce_side(S: np.ndarray, q: int) -> tuple[np.ndarray, tuple[float, float]
     # rational: least squares on samples, ends interpolated; the bound is sampled (estimated)
     t = np.linspace(0, 1, 8 * (q + 1) + 1)
     pts = _eval(S, t)
-    M = basis(q, t)
-    R = np.empty((q + 1, 2))
-    R[0], R[-1] = pts[0], pts[-1]
-    if q > 1:
-        rhs = pts - np.outer(M[:, 0], R[0]) - np.outer(M[:, -1], R[-1])
-        R[1:-1] = np.linalg.lstsq(M[:, 1:-1], rhs, rcond=None)[0]
+    R = fit_points(t, pts, q)
     tt = np.linspace(0, 1, 257)
     d = 1.5 * np.max(np.abs(_eval(S, tt) - basis(q, tt) @ R), axis=0)
     return np.concatenate([R, np.ones((q + 1, 1))], axis=1), (float(d[0]), float(d[1])), True

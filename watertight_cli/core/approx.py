@@ -18,7 +18,7 @@ import numpy as np
 from .bernstein import basis
 from .bezier import curve_eval
 
-__all__ = ["fit_curve", "fit_piecewise", "sampled_error"]
+__all__ = ["fit_curve", "fit_piecewise", "fit_points", "sampled_error"]
 
 
 def _nodes(k: int) -> np.ndarray:
@@ -42,12 +42,12 @@ def sampled_error(samples_fn: Callable[[np.ndarray], np.ndarray], n: int = 1001)
     return error_fn
 
 
-def _lsq_fixed_ends(samples_fn, degree: int, n_samples: int, p0=None, p1=None) -> np.ndarray:
-    """Least-squares Bezier fit with ctrl[0] = f(0) (or p0) and ctrl[-1] = f(1) (or p1). (degree+1, d)."""
-    t = _nodes(n_samples)
-    f = np.asarray(samples_fn(t), dtype=float)
-    if f.ndim != 2 or f.shape[0] != t.shape[0]:
-        raise ValueError(f"samples_fn must return (len(t), d), got shape {f.shape}")
+def fit_points(t: np.ndarray, pts: np.ndarray, degree: int, p0=None, p1=None) -> np.ndarray:
+    """Least-squares Bezier fit of points ``pts`` (k, d) at parameters ``t`` (k,), with ctrl[0] =
+    pts[0] (or p0) and ctrl[-1] = pts[-1] (or p1) held. Returns (degree+1, d)."""
+    f = np.asarray(pts, dtype=float)
+    if f.ndim != 2 or f.shape[0] != len(t):
+        raise ValueError(f"points must be (len(t), d), got shape {f.shape}")
     start = f[0] if p0 is None else np.asarray(p0, dtype=float)
     end = f[-1] if p1 is None else np.asarray(p1, dtype=float)
     ctrl = np.empty((degree + 1, f.shape[1]))
@@ -55,9 +55,14 @@ def _lsq_fixed_ends(samples_fn, degree: int, n_samples: int, p0=None, p1=None) -
     if degree >= 2:
         b = basis(degree, t)
         rhs = f - b[:, :1] * start[None, :] - b[:, -1:] * end[None, :]
-        sol, *_ = np.linalg.lstsq(b[:, 1:-1], rhs, rcond=None)
-        ctrl[1:-1] = sol
+        ctrl[1:-1] = np.linalg.lstsq(b[:, 1:-1], rhs, rcond=None)[0]
     return ctrl
+
+
+def _lsq_fixed_ends(samples_fn, degree: int, n_samples: int, p0=None, p1=None) -> np.ndarray:
+    """Least-squares Bezier fit with ctrl[0] = f(0) (or p0) and ctrl[-1] = f(1) (or p1). (degree+1, d)."""
+    t = _nodes(n_samples)
+    return fit_points(t, samples_fn(t), degree, p0, p1)
 
 
 def fit_curve(
