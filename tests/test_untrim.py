@@ -339,3 +339,36 @@ def test_transposed_face_is_the_same_face():
         back = transpose_face(turned)
         np.testing.assert_array_equal(back.surface.poles, face.surface.poles)
         assert back.reversed is face.reversed and back.uv_bounds == face.uv_bounds
+
+
+def test_turn_rule_counts_edges_that_flattening_makes_iso():
+    """A thin strip (like bug33398's blend faces): u-iso long sides, short sides that wiggle in
+    v. Both pairs would be rungs spanning many plan pieces, so turning gains nothing and the face
+    stays as it is; counting only exactly iso edges turned it, and the flattened short sides then
+    became rungs that could not take their curve (a 1.4e-3 gap)."""
+    from types import SimpleNamespace
+
+    from watertight_cli.model import BSplineCurve, BSplineSurface, Coedge, Face, Loop
+    from watertight_cli.untrim import _FaceGeometry, _should_transpose
+
+    # a 0.5 x 30 strip: the surface on [0, 1]^2, degree 3 x 2
+    uu, vv = np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 3), indexing="ij")
+    poles = np.stack([0.5 * uu, 30.0 * vv, 0.1 * uu * vv], axis=-1)
+    surf = BSplineSurface(3, 2, np.r_[[0.0] * 4, [1.0] * 4], np.r_[[0.0] * 3, [1.0] * 3], poles)
+
+    def line(a, b, wiggle=0.0, k=8):
+        t = np.linspace(0, 1, k)
+        pts = np.outer(1 - t, a) + np.outer(t, b)
+        pts[1:-1, 1] += wiggle * np.sin(np.arange(1, k - 1))
+        return BSplineCurve(1, np.r_[0.0, t, 1.0], pts)
+
+    sides = [line((0, 0), (1, 0), 2e-7), line((1, 0), (1, 1)), line((1, 1), (0, 1), 2e-7), line((0, 1), (0, 0))]
+    loop = Loop(tuple(Coedge(i, False, c, 0.0, 1.0) for i, c in enumerate(sides)), True)
+    face = Face(0, surf, "BSpline", False, (loop,), (0.0, 1.0, 0.0, 1.0))
+    model = SimpleNamespace(edges=[SimpleNamespace(degenerate=False, seam=False) for _ in sides])
+    plan = {i: np.linspace(0, 1, 22)[1:-1] + 0.003 for i in range(4)}  # cuts on no knot line
+    g = _FaceGeometry(face, 30.0, TOL)
+    flatten = 0.5 * TOL.approx_rel * 30.0
+    assert 2e-7 * g.sv < flatten  # the short sides' wiggle is one flattening removes
+    assert _should_transpose(face, model, plan, g, 0.0)  # the old count: turned
+    assert not _should_transpose(face, model, plan, g, flatten)

@@ -1136,7 +1136,8 @@ def transpose_face(face: Face) -> Face:
     return replace(face, surface=surf, reversed=not face.reversed, loops=loops, uv_bounds=(v0, v1, u0, u1))
 
 
-def _should_transpose(face: Face, model: Model, plan: dict[int, np.ndarray], g: _FaceGeometry) -> bool:
+def _should_transpose(face: Face, model: Model, plan: dict[int, np.ndarray], g: _FaceGeometry,
+                      flatten: float = 0.0) -> bool:
     """Whether the face's cells fit its edges better with u and v swapped.
 
     Cells are bounded left and right by u-iso rungs, which run linearly in the cell parameter t.
@@ -1149,6 +1150,11 @@ def _should_transpose(face: Face, model: Model, plan: dict[int, np.ndarray], g: 
     such cut and one per piece that is not affine; the face is turned when turning costs less than
     half as much and saves at least ``_TURN_MIN``. Faces with seams or poles keep their
     orientation (their handling is tested as read).
+
+    An edge counts as iso when ``_flatten`` will make it one: its coordinate stays in a band whose
+    half-width moves the surface point by at most ``flatten`` (model units). Counting only exact
+    iso edges turned thin blend faces whose v-iso edges wiggle by 1e-5 in v: turned, those edges
+    were flattened into rungs spanning many plan pieces, which could not take their curve.
     """
     cost = [0, 0]  # as is (u-iso edges are rungs), turned (v-iso edges are rungs)
     for loop in face.loops:
@@ -1159,9 +1165,9 @@ def _should_transpose(face: Face, model: Model, plan: dict[int, np.ndarray], g: 
             if ce.pcurve is None:
                 continue
             uv = ce.pcurve.poles
-            if np.ptp(uv[:, 0]) <= g.ueps:
+            if np.ptp(uv[:, 0]) <= max(g.ueps, 2 * flatten / g.su if g.su > 0 else 0.0):
                 which, axis, lines, eps, speed = 0, 1, g.vb, g.veps, g.sv
-            elif np.ptp(uv[:, 1]) <= g.veps:
+            elif np.ptp(uv[:, 1]) <= max(g.veps, 2 * flatten / g.sv if g.sv > 0 else 0.0):
                 which, axis, lines, eps, speed = 1, 0, g.ub, g.ueps, g.su
             else:
                 continue
@@ -1189,7 +1195,8 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     t0 = time.perf_counter()
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal)
-    turn = [_should_transpose(face, model, plan, g) for face, g in zip(model.faces, geoms, strict=True)]
+    flatten = _FLATTEN * tol.approx_rel * model.diagonal
+    turn = [_should_transpose(face, model, plan, g, flatten) for face, g in zip(model.faces, geoms, strict=True)]
     plan_time = time.perf_counter() - t0
     faces = []
     for i, (face, g) in enumerate(zip(model.faces, geoms, strict=True)):
