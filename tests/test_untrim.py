@@ -362,7 +362,8 @@ def test_turn_rule_counts_edges_that_flattening_makes_iso():
         pts[1:-1, 1] += wiggle * np.sin(np.arange(1, k - 1))
         return BSplineCurve(1, np.r_[0.0, t, 1.0], pts)
 
-    sides = [line((0, 0), (1, 0), 2e-7), line((1, 0), (1, 1)), line((1, 1), (0, 1), 2e-7), line((0, 1), (0, 0))]
+    sides = [line((0, 0), (1, 0), 2e-7), line((1, 0), (1, 1)),
+             line((1, 1), (0, 1), 2e-7), line((0, 1), (0, 0))]
     loop = Loop(tuple(Coedge(i, False, c, 0.0, 1.0) for i, c in enumerate(sides)), True)
     face = Face(0, surf, "BSpline", False, (loop,), (0.0, 1.0, 0.0, 1.0))
     model = SimpleNamespace(edges=[SimpleNamespace(degenerate=False, seam=False) for _ in sides])

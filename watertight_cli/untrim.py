@@ -1196,7 +1196,8 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal)
     flatten = _FLATTEN * tol.approx_rel * model.diagonal
-    turn = [_should_transpose(face, model, plan, g, flatten) for face, g in zip(model.faces, geoms, strict=True)]
+    turn = [_should_transpose(face, model, plan, g, flatten)
+            for face, g in zip(model.faces, geoms, strict=True)]
     plan_time = time.perf_counter() - t0
     faces = []
     for i, (face, g) in enumerate(zip(model.faces, geoms, strict=True)):
