@@ -230,3 +230,63 @@ def test_occ22470_rungs_and_midway_curves(tmp_path):
     assert rep["invariants"] == {"I1": True, "I2": True, "I3": True, "I4": True, "valid": True}
     assert rep["after"]["free_edges"] == 0 and rep["after"]["solids"] == rep["before"]["solids"]
     assert rep["shared_curves"].get("midway between the faces", 0) >= 1
+
+
+def test_through_leaves_t_vertices_within_rounding_and_past_the_degree_budget():
+    """Bending a long inner side through its T-vertices: not for rounding-level offsets (plan cuts
+    stack 40 cells beside a rung; bending through all would need degree 44), and never past
+    ``max_degree``; a real offset within budget is bent exactly through."""
+    row = np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 0.0], [2.0, 0.0, 0.0]])
+    ts = np.linspace(0, 1, 42)[1:-1]
+    on = curve_eval(row, ts)
+    assert _through(row, False, ts, on + 1e-14, atol=1e-12) is None
+    assert _through(row, False, ts, on + 1e-6, max_degree=25) is None  # 40 T-vertices: degree 41
+    t3 = np.array([0.25, 0.5, 0.75])
+    target = curve_eval(row, t3) + np.array([0.0, 1e-6, 0.0])
+    bent = _through(row, False, t3, target, atol=1e-12)
+    assert bent is not None and bent.shape[0] - 1 <= 4
+    np.testing.assert_allclose(curve_eval(bent, t3), target, atol=1e-14)
+    np.testing.assert_array_equal(bent[[0, -1]], row[[0, -1]])
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(0.5, 2.0), min_size=9, max_size=9))
+def test_missing_factors_make_a_shared_row_divisible_at_the_uncut_degree(ws):
+    """Two rational patches of one face, one below taking its bottom curve's weights kappa_1, one
+    above taking its top's kappa_2: multiplying the first by the factor it lacks makes its row
+    weights a multiple of the second's, with degree w + deg kappa_1 + deg kappa_2 (not doubled),
+    and the surface is unchanged."""
+    from watertight_cli.core.bezier import rational_surface_eval_grid
+    from watertight_cli.substitute import _divisible, _missing_factors, _row, _times
+
+    w = np.array(ws[:4])
+    H = np.zeros((4, 3, 4))
+    H[..., 0], H[..., 1] = np.meshgrid(np.arange(4.0), np.arange(3.0), indexing="ij")
+    H[..., 3] = w[:, None] * np.array([1.0, 0.8, 1.1])[None, :]
+    H[..., :3] *= H[..., 3:4]
+    k1, k2 = np.array([1.0, *ws[4:6], 1.3]), np.array([1.0, *ws[6:9]])
+    own_f, part_f = [], []
+    A = _times(H, 0, k1 / k1[0], own_f)
+    B = _times(H, 0, k2 / k2[0], part_f)
+    assert not _divisible(_row(A, "top")[:, 3], _row(B, "bottom")[:, 3])
+    added = []
+    A2 = _missing_factors(A, own_f, part_f, 0, 25, added)
+    assert len(added) == 1 and A2.shape[0] - 1 == 3 + 3 + 3
+    assert _divisible(_row(A2, "top")[:, 3], _row(B, "bottom")[:, 3])
+    g = np.linspace(0, 1, 7)
+    np.testing.assert_allclose(rational_surface_eval_grid(A2, g, g), rational_surface_eval_grid(H, g, g),
+                               atol=1e-12)
+    assert _missing_factors(A2, own_f + added, part_f, 0, 25, []) is A2  # nothing left to add
+
+
+def test_rung_may_slide_along_its_side_within_the_budget():
+    """A rung on an iso piece whose v is not affine in the edge parameter takes the curve only
+    when the slide (2 x v's departure x the side's speed) stays within the budget."""
+    from watertight_cli.substitute import _affine_enough
+
+    H = np.array([[0.0, 0.0, 1.0], [0.0, 0.30, 1.0], [0.0, 0.70, 1.0], [0.0, 1.0, 1.0]])  # 0.0333 off
+    assert _affine_enough(H[[0, 3]], 1.0, 1e-12, 10.0, 0.0)
+    assert not _affine_enough(H, 1.0, 1e-12, 10.0, 0.1)  # slide 2 x 0.0333 x 10 = 0.67
+    assert _affine_enough(H, 1.0, 1e-12, 10.0, 1.0)
+    even = np.array([[0.0, 0.0, 1.0], [0.0, 1 / 3, 1.0], [0.0, 2 / 3, 1.0], [0.0, 1.0, 1.0]])
+    assert _affine_enough(even, 1.0, 1e-12, 10.0, 0.0)

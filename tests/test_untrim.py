@@ -341,35 +341,34 @@ def test_transposed_face_is_the_same_face():
         assert back.reversed is face.reversed and back.uv_bounds == face.uv_bounds
 
 
-def test_turn_rule_counts_edges_that_flattening_makes_iso():
-    """A thin strip (like bug33398's blend faces): u-iso long sides, short sides that wiggle in
-    v. Both pairs would be rungs spanning many plan pieces, so turning gains nothing and the face
-    stays as it is; counting only exactly iso edges turned it, and the flattened short sides then
-    became rungs that could not take their curve (a 1.4e-3 gap)."""
-    from types import SimpleNamespace
+def test_plan_cuts_put_every_rung_along_an_edge_on_one_plan_piece():
+    """A cell whose rung runs along a u-iso edge is cut at that edge's plan parameters, so each
+    rung lies on one piece and can take the edge's curve in stage 2. plate_with_holes has two
+    rungs that span a plan cut when only vertices cut them."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.substitute import _rung_ref
+    from watertight_cli.untrim import _FaceGeometry, _unshared_rungs, edge_plan, untrim, untrim_face
 
-    from watertight_cli.model import BSplineCurve, BSplineSurface, Coedge, Face, Loop
-    from watertight_cli.untrim import _FaceGeometry, _should_transpose
-
-    # a 0.5 x 30 strip: the surface on [0, 1]^2, degree 3 x 2
-    uu, vv = np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 3), indexing="ij")
-    poles = np.stack([0.5 * uu, 30.0 * vv, 0.1 * uu * vv], axis=-1)
-    surf = BSplineSurface(3, 2, np.r_[[0.0] * 4, [1.0] * 4], np.r_[[0.0] * 3, [1.0] * 3], poles)
-
-    def line(a, b, wiggle=0.0, k=8):
-        t = np.linspace(0, 1, k)
-        pts = np.outer(1 - t, a) + np.outer(t, b)
-        pts[1:-1, 1] += wiggle * np.sin(np.arange(1, k - 1))
-        return BSplineCurve(1, np.r_[0.0, t, 1.0], pts)
-
-    sides = [line((0, 0), (1, 0), 2e-7), line((1, 0), (1, 1)),
-             line((1, 1), (0, 1), 2e-7), line((0, 1), (0, 0))]
-    loop = Loop(tuple(Coedge(i, False, c, 0.0, 1.0) for i, c in enumerate(sides)), True)
-    face = Face(0, surf, "BSpline", False, (loop,), (0.0, 1.0, 0.0, 1.0))
-    model = SimpleNamespace(edges=[SimpleNamespace(degenerate=False, seam=False) for _ in sides])
-    plan = {i: np.linspace(0, 1, 22)[1:-1] + 0.003 for i in range(4)}  # cuts on no knot line
-    g = _FaceGeometry(face, 30.0, TOL)
-    flatten = 0.5 * TOL.approx_rel * 30.0
-    assert 2e-7 * g.sv < flatten  # the short sides' wiggle is one flattening removes
-    assert _should_transpose(face, model, plan, g, 0.0)  # the old count: turned
-    assert not _should_transpose(face, model, plan, g, flatten)
+    model = inspect(str(fixture_path("plate_with_holes.step")), TOL, array_gaps=False).model
+    res = untrim(model, TOL)
+    along = shared = 0
+    for fr in res.faces:
+        eps = fr.eps
+        for p in fr.patches:
+            cm = cell_map(p, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
+            for a, b in (cm[0], cm[1]):
+                lo, hi = min(a[1], b[1]) + eps[1], max(a[1], b[1]) - eps[1]
+                ends = [(q, q.H[[0, -1], :2] / q.H[[0, -1], 2:3]) for q in fr.iso_pieces if not q.degenerate]
+                on = [q for q, e in ends if abs(e[0, 0] - a[0]) <= 2 * eps[0]
+                      and e[:, 1].min() < hi and e[:, 1].max() > lo]
+                if on:
+                    along += 1
+                    shared += _rung_ref(fr.iso_pieces, a, b, eps) is not None
+    assert along >= 20 and shared == along
+    # the count that turning decides by agrees: none left here, two with vertex cuts only
+    assert sum(_unshared_rungs(fr, 0.0) for fr in res.faces) == 0
+    faces = [_FaceGeometry(f, model.diagonal, TOL) for f in model.faces]
+    plan = edge_plan(model, faces, TOL.sliver_rel * model.diagonal)
+    left = sum(_unshared_rungs(untrim_face(f, model, plan, TOL, g, "vertices"), 0.0)
+               for f, g in zip(model.faces, faces, strict=True))
+    assert left == 2

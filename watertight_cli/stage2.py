@@ -47,6 +47,8 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
                     tick(1)
         groups.append((built, solid))
     shape, joined = join(groups, model.diagonal, src)
+    if keep is not None:
+        keep["shape"] = shape
     valid = is_valid(shape)
     times["build"] = time.perf_counter() - t
 

@@ -45,7 +45,7 @@ from .core.bspline import to_bezier
 from .core.reduce import reduce_curve
 from .model import Model
 from .tolerances import Tolerances
-from .untrim import Patch, UntrimResult, _t_at_u, cell_map
+from .untrim import RUNG_SLIDE, Patch, UntrimResult, _eval, _t_at_u, cell_map
 
 __all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
 
@@ -58,6 +58,7 @@ SIDES = {
 }
 _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
+_BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
 _T_MERGE = 1e-6  # T-vertex parameters on a long side this close, at one 3D point, are one vertex
 _REFIT_GROWTH = 4.0  # a refitted net spanning more than this times the old one is refused
 _ELEVATE = 25  # elevation used to tighten control-net bounds of a patch's change
@@ -373,8 +374,14 @@ def _mismatch(row: np.ndarray, K: np.ndarray, max_degree: int) -> float:
     return float(np.abs(r - line).max())
 
 
-def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) -> _Ref | None:
-    """The edge interval of a rung from uv ``a`` to ``b`` when it lies on a u-iso boundary piece."""
+def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], length: float = 0.0,
+              slide: float = 0.0) -> _Ref | None:
+    """The edge interval of a rung from uv ``a`` to ``b`` when it lies on a u-iso boundary piece.
+
+    The rung runs linearly in v; the edge's parameter may not. Taking the curve then slides each
+    point of the row along the side by up to 2 x (v's departure from affine on the piece) x the
+    side's speed (``length`` / its v extent, model units); that is allowed up to ``slide``, and
+    the rung is left unshared beyond it (the move is measured and bounded like any other)."""
     for p in pieces:
         uv = p.H[[0, -1], :2] / p.H[[0, -1], 2:3]
         if max(abs(a[0] - uv[0, 0]), abs(b[0] - uv[0, 0]), abs(a[0] - uv[1, 0])) > 2 * eps[0]:
@@ -384,11 +391,7 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) ->
             continue
         if p.degenerate:
             return _Ref(p.edge, p.w0, p.w1, pole=True)
-        v = p.H[:, 1] / p.H[:, 2]
-        even = v[0] + (v[-1] - v[0]) * np.arange(len(v)) / max(len(v) - 1, 1)
-        if p.H.shape[0] > 2 and (not np.allclose(p.H[:, 2], p.H[0, 2]) or np.abs(v - even).max() > eps[1]):
-            # the rung runs linearly in v, the edge's parameter does not: the curve would slide
-            # along the side (by up to this v offset times the surface's speed); left unshared
+        if p.H.shape[0] > 2 and not _affine_enough(p.H, abs(b[1] - a[1]), eps[1], length, slide):
             return None
         ws = [p.w0 + _t_at_u(p.H, float(x[1]), axis=1) * (p.w1 - p.w0) for x in (a, b)]
         # snap to the piece's ends, so corners at plan parameters get the plan's floats
@@ -398,8 +401,25 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) ->
     return None
 
 
-def _refs(patch: Patch, fr_pieces, eps) -> tuple[dict[str, _Ref | None], np.ndarray]:
-    """Each side's edge reference (None for inner sides) and the patch's corner uv (2, 2, 2)."""
+def _affine_enough(H: np.ndarray, dv: float, veps: float, length: float, slide: float) -> bool:
+    """Whether a piece's v is affine in its parameter within ``veps``, or close enough that a rung
+    of v extent ``dv`` and 3D ``length`` slides by at most ``slide`` taking the edge's curve."""
+    if np.allclose(H[:, 2], H[0, 2]):
+        v = H[:, 1] / H[:, 2]
+        even = v[0] + (v[-1] - v[0]) * np.arange(len(v)) / (len(v) - 1)
+        dev = float(np.abs(v - even).max())  # convex hull: bounds v(w) - affine
+    else:
+        t = np.linspace(0.0, 1.0, 33)
+        v = _eval(H, t)[:, 1]
+        dev = float(np.abs(v - (v[0] + t * (v[-1] - v[0]))).max())
+    if dev <= veps:
+        return True
+    return dv > 0 and 2.0 * dev * length / dv <= slide
+
+
+def _refs(patch: Patch, fr_pieces, eps, slide: float = 0.0) -> tuple[dict[str, _Ref | None], np.ndarray]:
+    """Each side's edge reference (None for inner sides) and the patch's corner uv (2, 2, 2);
+    ``slide`` as in ``_rung_ref``."""
     cm = cell_map(patch, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
     out: dict[str, _Ref | None] = {}
     for name, side in (("bottom", patch.bottom), ("top", patch.top)):
@@ -407,8 +427,10 @@ def _refs(patch: Patch, fr_pieces, eps) -> tuple[dict[str, _Ref | None], np.ndar
             out[name] = None
         else:
             out[name] = _Ref(side.edge, side.w0, side.w1, pole=side.degenerate)
-    out["left"] = _rung_ref(fr_pieces, cm[0, 0], cm[0, 1], eps)
-    out["right"] = _rung_ref(fr_pieces, cm[1, 0], cm[1, 1], eps)
+    xyz = _cartesian(patch.ctrl, patch.rational)
+    for name, c, row in (("left", cm[0], xyz[0]), ("right", cm[1], xyz[-1])):
+        length = float(np.linalg.norm(np.diff(row, axis=0), axis=1).sum())  # bounds the side's length
+        out[name] = _rung_ref(fr_pieces, c[0], c[1], eps, length, slide)
     return out, cm
 
 
@@ -531,22 +553,47 @@ def _divisible(omega: np.ndarray, kappa: np.ndarray) -> bool:
     return _divide(omega, kappa) is not None
 
 
-def _common_weights(H: np.ndarray, rows: dict[str, np.ndarray], max_degree: int) -> np.ndarray:
+def _common_weights(H: np.ndarray, rows: dict[str, np.ndarray], max_degree: int,
+                    added: list | None = None) -> np.ndarray:
     """A rational net made ready to take its rows exactly, in K's own parameter: along each axis, H
     is multiplied by the weight function kappa of every K whose row weights omega it does not
     divide (a polynomial K counts as kappa = 1 at K's degree, which elevates H by that degree).
     The surface is unchanged, and each row's weights become omega times kappa times the other
     factors, so ``_put`` divides them exactly. Left as it is past ``max_degree`` (``_put`` then
-    matches corner weights and the caller refits)."""
+    matches corner weights and the caller refits). The factors used go into ``added``."""
     for axis, names in ((0, ("bottom", "top")), (1, ("left", "right"))):
         factors = [rows[n][:, 3] for n in names
                    if n in rows and not _divisible(_row(H, n)[:, 3], rows[n][:, 3])]
         if not factors or H.shape[axis] - 1 + sum(len(f) - 1 for f in factors) > max_degree:
             continue
-        G = np.swapaxes(H, 0, axis)
         for f in factors:
-            G = product(G, f / f[0], axis=0)
-        H = np.swapaxes(G, 0, axis)
+            H = _times(H, axis, f / f[0], added)
+    return H
+
+
+def _times(H: np.ndarray, axis: int, f: np.ndarray, added: list | None = None) -> np.ndarray:
+    """The same rational surface with its homogeneous net times the weight function ``f`` (Bernstein
+    coefficients) along ``axis``; the factor is recorded in ``added``."""
+    if added is not None:
+        added.append((axis, f))
+    return np.swapaxes(product(np.swapaxes(H, 0, axis), f, axis=0), 0, axis)
+
+
+def _missing_factors(H: np.ndarray, own: list, partner: list, axis: int, max_degree: int,
+                     added: list) -> np.ndarray:
+    """An inner side shared by two rational patches that each took other curves' weight functions
+    (a cell cut under another, one below taking its bottom's K, one above its top's): the row's
+    weights are w x kappa_1 against w x kappa_2. Multiplying this net by the partner's factors
+    along the side that it lacks makes its weights a multiple of the partner's at the degree the
+    uncut cell had; multiplying by the partner's whole row weights (as ``_common_weights`` would)
+    doubles the degree (44 for bug33398's blends)."""
+    missing = [f for ax, f in partner if ax == axis
+               and not any(a2 == ax and len(g) == len(f) and np.allclose(g, f, rtol=1e-12, atol=0.0)
+                           for a2, g in own)]
+    if not missing or H.shape[axis] - 1 + sum(len(f) - 1 for f in missing) > max_degree:
+        return H
+    for f in missing:
+        H = _times(H, axis, f, added)
     return H
 
 
@@ -565,7 +612,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
         eps = fr.eps if fr.eps is not None else (0.0, 0.0)
         info = []
         for p in fr.patches:
-            refs, cm = _refs(p, fr.iso_pieces, eps)
+            refs, cm = _refs(p, fr.iso_pieces, eps, RUNG_SLIDE * tol.approx_rel * model.diagonal)
             info.append((refs, cm))
             for name, ref in refs.items():
                 if ref is None or ref.pole:
@@ -681,6 +728,7 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     was_rational = p.rational
     rational = p.rational or any(K.shape[1] == 4 for K in rows.values())
     H = p.ctrl
+    added: list = []
     if rational and not was_rational:
         H = np.concatenate([H, np.ones(H.shape[:2] + (1,))], axis=-1)
         for axis, names in ((0, ("bottom", "top")), (1, ("left", "right"))):
@@ -688,13 +736,13 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
             if ks:
                 d = max(H.shape[axis] - 1, ks[0].shape[0] - 1)
                 f = _weight_factor(ks[0][:, 3], tol.max_degree - d)
-                if len(f) > 1:  # the factor runs along ``axis``: move that axis first
-                    H = np.swapaxes(product(np.swapaxes(H, 0, axis), f, axis=0), 0, axis)
+                if len(f) > 1:  # the factor runs along ``axis``
+                    H = _times(H, axis, f / f[0], added)
         rows = {k: _homog(K) for k, K in rows.items()}
     elif rational:
         rows = {k: _homog(K) for k, K in rows.items()}
     if rational:
-        H = _common_weights(H, rows, tol.max_degree)
+        H = _common_weights(H, rows, tol.max_degree, added)
     ds, dt = _degrees_for(H, rows)
     if max(ds, dt) > tol.max_degree:
         fs.problems.append(f"face {p.face}: a shared curve needs degree {max(ds, dt)} "
@@ -736,6 +784,7 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     fs.moved = max(fs.moved, moved)
     fs.estimated = fs.estimated or est
     p.ctrl, p.rational = H, rational
+    p.factors = p.factors + added
     p.bound += moved
 
 
@@ -857,7 +906,7 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
                 # parameter): copying would slide the patch along it; both stay on the line
                 fs.inner_reparam += 1
                 continue
-            _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal)
+            _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal, src.factors)
             fs.inner_shared += 1
     _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal)
 
@@ -937,27 +986,33 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
             cuts.append((k, *cut))
         shorts = cuts
         if ts:
-            bent = _through(row, long_p.rational, np.array(ts), np.array(targets))
+            bent = _through(row, long_p.rational, np.array(ts), np.array(targets), _BEND_REL * diagonal,
+                            tol.max_degree)
             if bent is not None:
-                _copy_row(long_p, lname, bent, long_p.rational, fs, tol, diagonal)
+                _copy_row(long_p, lname, bent, long_p.rational, fs, tol, diagonal, long_p.factors)
                 row = _row(long_p.ctrl, lname)
         for k, ua, ub in shorts:
             _copy_row(fr.patches[items[k][0]], items[k][1], curve_segment(row, ua, ub), long_p.rational,
-                      fs, tol, diagonal)
+                      fs, tol, diagonal, long_p.factors)
             fs.inner_t += 1
     fs.inner_unpaired += len(set(lonely) - used)
 
 
-def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarray) -> np.ndarray | None:
+def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarray, atol: float = 0.0,
+             max_degree: int = 25) -> np.ndarray | None:
     """The row plus the smallest polynomial correction x (1 - x) L(x) that makes it pass through
-    ``targets`` at ``ts`` (ends kept); None when it already does (to rounding)."""
+    ``targets`` at ``ts`` (ends kept); None when it already does within ``atol`` (the stacked cells
+    beside a rung that plan cuts made put 40 T-vertices on one side, a hair off it by the rounding
+    of their compositions: bending through them all would take degree 44), or when the correction
+    would need more than ``max_degree`` (the T-vertices then stay where they are; the read-back
+    measures what that leaves)."""
     h = basis(row.shape[0] - 1, ts) @ row
     pts = h[:, :3] / h[:, 3:4] if rational else h
     delta = targets - pts
     scale = float(np.abs(_cartesian(row, rational)).max()) or 1.0
-    if np.abs(delta).max() <= 1e-15 * scale:
-        return None
     n = len(ts)
+    if np.abs(delta).max() <= max(1e-15 * scale, atol) or n + 1 > max_degree:
+        return None
     # L in Bernstein form of degree n - 1 interpolating delta / (t (1 - t)); x (1 - x) = B_1^2 / 2
     vals = delta / (ts * (1 - ts))[:, None]
     L = np.linalg.solve(basis(n - 1, ts), vals) if n > 1 else vals
@@ -988,7 +1043,8 @@ def _side_param(p: Patch, name: str, uv: np.ndarray) -> float:
 
 
 def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: FaceSubstitution,
-              tol: Tolerances, diagonal: float) -> None:
+              tol: Tolerances, diagonal: float, factors: list = ()) -> None:
+    """Copy a partner patch's row (the partner multiplied by the weight ``factors``) into side ``name``."""
     was_rational = p.rational
     rational = p.rational or row_rational
     H = p.ctrl
@@ -996,8 +1052,11 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
         H = np.concatenate([H, np.ones(H.shape[:2] + (1,))], axis=-1)
     if rational and not row_rational:
         row = _homog(row)
+    added: list = []
     if rational:  # the neighbour's row may carry weights this net does not have (``_common_weights``)
-        H = _common_weights(H, {name: row}, tol.max_degree)
+        H = _missing_factors(H, p.factors, list(factors), 0 if name in ("bottom", "top") else 1,
+                             tol.max_degree, added)
+        H = _common_weights(H, {name: row}, tol.max_degree, added)
     ds, dt = _degrees_for(H, {name: row})
     if max(ds, dt) > tol.max_degree:
         fs.problems.append(f"face {p.face}: a shared inner side needs degree {max(ds, dt)}")
@@ -1019,6 +1078,7 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
         row = elevate_curve(row, d - (row.shape[0] - 1))
     if np.array_equal(own, row):
         p.ctrl, p.rational = H, rational
+        p.factors = p.factors + added
         return
     xyz = _cartesian(own, rational), _cartesian(row, rational)
     if np.linalg.norm(xyz[0] - xyz[1], axis=1).max() > tol.approx_rel * diagonal + 2.0 * fs.moved:
@@ -1032,4 +1092,5 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
     fs.moved = max(fs.moved, moved)
     fs.estimated = fs.estimated or est
     p.ctrl, p.rational = H, rational
+    p.factors = p.factors + added
     p.bound += moved

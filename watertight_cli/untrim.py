@@ -21,11 +21,11 @@ The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
    surface span is cut to the cell's box and its degree reduced, the pieces' degree is reduced with
    their ends held, and if the certified bound exceeds the tolerance the cell is halved and tried again.
 
-Orientation: rungs run linearly in the cell parameter, so a boundary edge along a u-iso line can take
-its shared curve in stage 2 only where its rung lies on one plan piece and carries the edge's
-parameter. A face whose u-iso edges would leave clearly more such rungs unshared than its v-iso edges
-is decomposed turned (u and v swapped, ``transpose_face``) and kept so when that decomposes cleanly;
-and a cell whose rung runs along two u-iso edges is cut at their vertex.
+Rungs along edges: a boundary edge along a u-iso line is the rung of the cells beside it. Those
+cells are cut at the edge's plan parameters, so each rung lies on one plan piece; it takes the
+edge's curve in stage 2 where the edge's parameter is affine along it (or close enough that the
+curve slides by at most ``RUNG_SLIDE`` of the tolerance). A face that still leaves rungs unshared is
+decomposed turned as well (u and v swapped, ``transpose_face``) and kept so when that leaves fewer.
 
 Real files need repairs before step 2, each bounded and added to the face's bound: loops whose
 consecutive pcurves leave uv gaps are closed (``_close_loops``); pcurves, or stretches of them, that
@@ -58,6 +58,11 @@ from .tolerances import Tolerances
 
 __all__ = ["Patch", "FaceResult", "UntrimResult", "untrim", "edge_plan", "UntrimError", "patch_points"]
 
+#: rung cuts tried in turn until a face's cells have no problem (``_cells``, ``_face_or_problem``)
+_RUNG_CUTS = ("plan", "vertices", "none")
+#: share of the tolerance by which a rung may slide along its side when it takes an edge's curve whose
+#: parameter is not affine in v (stage 2, ``substitute._rung_ref``); the move enters the bound
+RUNG_SLIDE = 0.1
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
@@ -109,6 +114,8 @@ class Patch:
     estimated: bool = False
     approximated: bool = False
     box: bool = False  # a sub-box of a span: u runs linearly between the rungs on both sides
+    # weight functions stage 2 multiplied the net by, as (axis, Bernstein coefficients / first)
+    factors: list = field(default_factory=list)
 
     @property
     def degrees(self) -> tuple[int, int]:
@@ -452,7 +459,7 @@ def _as_side(p: _Piece, veps: float) -> Side:
     return Side(p.H, iso, p.edge, p.w0, p.w1, p.degenerate, p.pcurve)
 
 
-def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, vertex_cuts: bool = True):
+def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, rung_cuts: str = "plan"):
     """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc)."""
     ub, vb, ueps, veps = g.ub, g.vb, g.ueps_lines, g.veps
     ends = []
@@ -483,10 +490,10 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, v
             fr.local_cuts += 1
             slabs[k - 1].append(left)
         slabs[j - 1].append(rest)
-    # vertices on slab lines: where two u-iso boundary edges meet on one line, a cell whose rung
-    # runs along both is cut there by a v-iso line, so each rung lies on one edge and stage 2 can
-    # put that edge's curve into it (the cuts at plan parameters inside an edge are not made: they
-    # multiply cells, and turning the face, ``_should_transpose``, serves those)
+    # rung cuts: a cell whose rung runs along a u-iso boundary piece is cut by v-iso lines at that
+    # piece's ends (the edge plan's parameters and the edge's vertices), so each rung lies on one
+    # plan piece and stage 2 can put that piece's curve into it. ``rung_cuts`` "vertices" cuts
+    # only where two edges meet, "none" not at all (the fallbacks of ``_face_or_problem``).
     ranges = {ce.edge: (min(ce.first, ce.last), max(ce.first, ce.last))
               for lp in face.loops for ce in lp.coedges}
     vertex_ends = []
@@ -494,9 +501,9 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, v
         lo, hi = ranges.get(q.edge, (np.inf, -np.inf))
         tol_w = 1e-9 * max(hi - lo, 1e-300)
         for k, w in ((0, q.w0), (-1, q.w1)):
-            if abs(w - lo) <= tol_w or abs(w - hi) <= tol_w:
+            if rung_cuts == "plan" or abs(w - lo) <= tol_w or abs(w - hi) <= tol_w:
                 vertex_ends.append((q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]))
-    vertex_ends = np.array(vertex_ends if vertex_cuts else []).reshape(-1, 2)
+    vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
     for j, sp in enumerate(slabs):
         if not sp:
             continue
@@ -1068,7 +1075,7 @@ def _monotone(p: _Piece, eps) -> list[_Piece]:
 
 
 def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
-                g: _FaceGeometry | None = None, vertex_cuts: bool = True) -> FaceResult:
+                g: _FaceGeometry | None = None, rung_cuts: str = "plan") -> FaceResult:
     t0 = time.perf_counter()
     fr = FaceResult(face.index)
     g = g or _FaceGeometry(face, model.diagonal, tol)
@@ -1078,7 +1085,7 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     fr.closure = move + flat
     fr.approximated = bool(flat > g.snap)
     reparam = 0.0
-    for ua, ubb, bot, top in _cells(face, pieces, g, fr, vertex_cuts):
+    for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts):
         t = time.perf_counter()
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
         reparam += time.perf_counter() - t
@@ -1096,20 +1103,20 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     return fr
 
 
-_TURN_MIN = 4  # rung pieces a turn must save (``_should_transpose``)
-
-
-_TURN_GROWTH = 2.0  # a turned face may have at most this many times the patches of the face as is
+#: a turned face may have at most this many times the patches of the face as is plus one per rung
+#: piece the turn lets take its edge's curve (``untrim``)
+_TURN_GROWTH = 2.0
 
 
 def _face_or_problem(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tolerances,
                      g: _FaceGeometry) -> FaceResult:
     """The face's stage-1 result, or a result carrying the error as its problem. A face whose
-    cells fold with the cuts at vertices on rungs (``_cells``) is made again without them."""
+    cells fold with the rung cuts at plan parameters (``_cells``) is made again with cuts at its
+    vertices only, then without."""
     fr = None
-    for vertex_cuts in (True, False):
+    for rung_cuts in _RUNG_CUTS:
         try:
-            this = untrim_face(face, model, plan, tol, g, vertex_cuts)
+            this = untrim_face(face, model, plan, tol, g, rung_cuts)
         except UntrimError as exc:
             this = FaceResult(face.index)
             this.problems.append(str(exc))
@@ -1136,82 +1143,64 @@ def transpose_face(face: Face) -> Face:
     return replace(face, surface=surf, reversed=not face.reversed, loops=loops, uv_bounds=(v0, v1, u0, u1))
 
 
-def _should_transpose(face: Face, model: Model, plan: dict[int, np.ndarray], g: _FaceGeometry,
-                      flatten: float = 0.0) -> bool:
-    """Whether the face's cells fit its edges better with u and v swapped.
-
-    Cells are bounded left and right by u-iso rungs, which run linearly in the cell parameter t.
-    A boundary edge along a u-iso line becomes the rungs of the cells beside it, and a rung can
-    take the edge's curve in stage 2 only when it lies on one piece of the edge plan (a plan cut
-    that is not on one of the face's own v-knot lines leaves a rung spanning two pieces) and the
-    edge's v is affine in its parameter on that piece (else the curve would slide along the rung).
-    v-iso edges are bottom and top sides, cut at every plan parameter and keeping their own
-    parameter. So each orientation is charged, over the edges that would be rungs in it, one per
-    such cut and one per piece that is not affine; the face is turned when turning costs less than
-    half as much and saves at least ``_TURN_MIN``. Faces with seams or poles keep their
-    orientation (their handling is tested as read).
-
-    An edge counts as iso when ``_flatten`` will make it one: its coordinate stays in a band whose
-    half-width moves the surface point by at most ``flatten`` (model units). Counting only exact
-    iso edges turned thin blend faces whose v-iso edges wiggle by 1e-5 in v: turned, those edges
-    were flattened into rungs spanning many plan pieces, which could not take their curve.
-    """
-    cost = [0, 0]  # as is (u-iso edges are rungs), turned (v-iso edges are rungs)
-    for loop in face.loops:
-        for ce in loop.coedges:
-            e = model.edges[ce.edge]
-            if e.degenerate or e.seam:
-                return False
-            if ce.pcurve is None:
-                continue
-            uv = ce.pcurve.poles
-            if np.ptp(uv[:, 0]) <= max(g.ueps, 2 * flatten / g.su if g.su > 0 else 0.0):
-                which, axis, lines, eps, speed = 0, 1, g.vb, g.veps, g.sv
-            elif np.ptp(uv[:, 1]) <= max(g.veps, 2 * flatten / g.sv if g.sv > 0 else 0.0):
-                which, axis, lines, eps, speed = 1, 0, g.ub, g.ueps, g.su
-            else:
-                continue
-            cuts = np.asarray(plan.get(ce.edge, ()), dtype=float)
-            if len(cuts):
-                x = ce.pcurve.evaluate(cuts)[:, axis]
-                cost[which] += int(np.sum(np.abs(x[:, None] - lines[None, :]).min(axis=1) > eps))
-            breaks = np.concatenate([[ce.first], cuts, [ce.last]]) if ce.first <= ce.last else \
-                np.concatenate([[ce.last], cuts, [ce.first]])
-            lam = np.linspace(0.0, 1.0, 9)
-            w = breaks[:-1, None] + lam[None, :] * np.diff(breaks)[:, None]
-            x = ce.pcurve.evaluate(w.ravel())[:, axis].reshape(w.shape)
-            line = x[:, :1] + lam[None, :] * (x[:, -1:] - x[:, :1])
-            cost[which] += int(np.sum(np.abs(x - line).max(axis=1) * speed > g.snap))
-    return cost[0] - cost[1] >= _TURN_MIN and 2 * cost[1] < cost[0]
-
-
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     """Stage 1 on a whole model. ``progress`` (optional) is called once per face.
 
-    A face that ``_should_transpose`` picks is also decomposed turned (``transpose_face``); when the
-    turned cells have no problem (no fold left) and at most ``_TURN_GROWTH`` times the patches, the
-    turned face replaces the face in ``model.faces``: the rest of the pipeline reads the face from
-    the model, so it sees the same surface and pcurves as its patches."""
+    Turned faces: a face (without seams or poles) whose cells leave rungs along its edges that
+    cannot take the edge's curve (``_unshared_rungs``), or that has a problem, is also decomposed
+    turned (``transpose_face``). The turned face is kept when its cells have no problem and leave
+    fewer such rungs, with at most ``_TURN_GROWTH`` times the patches plus the rungs saved (a face
+    whose u-iso edges are not affine in their parameter becomes one whose edges run along u: fusee's
+    face 9 goes from 9 to 180 patches). It then replaces the face in ``model.faces``: the rest of
+    the pipeline reads the face from the model, so it sees the same surface and pcurves as its
+    patches."""
     t0 = time.perf_counter()
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal)
-    flatten = _FLATTEN * tol.approx_rel * model.diagonal
-    turn = [_should_transpose(face, model, plan, g, flatten)
-            for face, g in zip(model.faces, geoms, strict=True)]
+    slide = RUNG_SLIDE * tol.approx_rel * model.diagonal
     plan_time = time.perf_counter() - t0
     faces = []
     for i, (face, g) in enumerate(zip(model.faces, geoms, strict=True)):
         fr = _face_or_problem(face, model, plan, tol, g)
-        if turn[i]:
-            # the turned face is kept only when its cells come out clean and not much more numerous
+        fixed = any(model.edges[ce.edge].seam or model.edges[ce.edge].degenerate
+                    for lp in face.loops for ce in lp.coedges)
+        left = 0 if fixed or fr.problems else _unshared_rungs(fr, slide)
+        if not fixed and (fr.problems or left):
             turned = transpose_face(face)
             frt = _face_or_problem(turned, model, plan, tol, _FaceGeometry(turned, model.diagonal, tol))
-            if not frt.problems and (fr.problems or len(frt.patches) <= _TURN_GROWTH * len(fr.patches)):
-                model.faces[i], fr = turned, frt
+            if not frt.problems:
+                left_t = _unshared_rungs(frt, slide)
+                room = _TURN_GROWTH * (len(fr.patches) + left - left_t)
+                if fr.problems or (left_t < left and len(frt.patches) <= room):
+                    model.faces[i], fr = turned, frt
         faces.append(fr)
         if progress is not None:
             progress(1)
     return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time)
+
+
+def _unshared_rungs(fr: FaceResult, slide: float) -> int:
+    """Rungs of the face's cells that run along one of its edges but cannot take the edge's curve
+    in stage 2 (by stage 2's own test, ``substitute._rung_ref``: the rung spans more than one plan
+    piece, or the edge's parameter is too far from affine along it)."""
+    from .substitute import _rung_ref  # imported here: substitute imports this module
+
+    ends = [(q, q.H[[0, -1], :2] / q.H[[0, -1], 2:3]) for q in fr.iso_pieces if not q.degenerate]
+    if not ends or fr.eps is None:
+        return 0
+    eps = fr.eps
+    n = 0
+    for p in fr.patches:
+        cm = cell_map(p, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
+        xyz = p.ctrl[..., :3] / p.ctrl[..., 3:4] if p.rational else p.ctrl
+        for (a, b), row in ((cm[0], xyz[0]), (cm[1], xyz[-1])):
+            lo, hi = min(a[1], b[1]) + eps[1], max(a[1], b[1]) - eps[1]
+            if not any(abs(e[0, 0] - a[0]) <= 2 * eps[0] and e[:, 1].min() < hi and e[:, 1].max() > lo
+                       for _, e in ends):
+                continue
+            length = float(np.linalg.norm(np.diff(row, axis=0), axis=1).sum())
+            n += _rung_ref(fr.iso_pieces, a, b, eps, length, slide) is None
+    return n
 
 
 # ------------------------------------------------------------------------------------ evaluation
