@@ -235,9 +235,14 @@ def _unroll_surface(s: Geom_BSplineSurface, bounds) -> Geom_BSplineSurface:
     cut_v = s.IsVPeriodic() and (v0 < sv0 - ev or v1 > sv1 + ev)
     if not (cut_u or cut_v):
         return s
-    s = s.Copy()
-    s.Segment(u0 if cut_u else su0, u1 if cut_u else su1, v0 if cut_v else sv0, v1 if cut_v else sv1)
-    return s
+    c = s.Copy()
+    try:
+        c.Segment(u0 if cut_u else su0, u1 if cut_u else su1, v0 if cut_v else sv0, v1 if cut_v else sv1)
+    except Exception:  # noqa: BLE001 - Standard_DomainError: bounds past one period
+        # bounds past one period: a degenerate face whose two sides coincide, which sewing joined to
+        # itself across the closure (its pcurves run to u = 2 on a [0, 1] surface); kept as it is
+        return s
+    return c
 
 
 def _curve_bspline(curve, first, last, tolerance, kind, trimmed_type, convert, approx_type):
