@@ -129,8 +129,8 @@ def test_fixture_converts_with_invariants(tmp_path, name):
         assert rep["after"]["volume_change_rel"] <= max(1e-6, 20 * rep["before"]["gap_max"] / rep["diagonal"])
 
 
-@pytest.mark.xfail(strict=True, reason="known: filleted_freeform keeps edges up to 9.7e-8 apart and 39 "
-                                       "free edges after sewing -- issue #5 is open")
+@pytest.mark.xfail(strict=True, reason="known: filleted_freeform has edges up to 9.4e-10 apart (I2: 1e-12 of the "
+                                       "diagonal is 9.1e-11) -- issue #5 is open")
 @pytest.mark.parametrize("name", ["filleted_freeform.step"])
 def test_fixture_known_failures(tmp_path, name):
     from watertight_cli.convert import convert_file

@@ -372,3 +372,21 @@ def test_plan_cuts_put_every_rung_along_an_edge_on_one_plan_piece():
     left = sum(_unshared_rungs(untrim_face(f, model, plan, TOL, g, "vertices"), 0.0)
                for f, g in zip(model.faces, faces, strict=True))
     assert left == 2
+
+
+def test_slab_lines_closer_than_a_sliver_in_3d_merge():
+    """Two slab lines whose 3D distance stays below a sliver all along the face merge (a knot
+    line wins); lines further apart somewhere along the face stay."""
+    from watertight_cli.model import BSplineSurface, Face
+    from watertight_cli.untrim import _FaceGeometry, _merge_thin
+
+    # x = 1e-3 u v, y = v: a pole at v = 0; a u-gap du is 1e-3 du v wide in 3D
+    uu, vv = np.meshgrid(np.linspace(0, 1, 2), np.linspace(0, 1, 2), indexing="ij")
+    poles = np.stack([1e-3 * uu * vv, vv, 0.0 * uu], axis=-1)
+    surf = BSplineSurface(1, 1, np.array([0.0, 0.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0, 1.0]), poles)
+    face = Face(0, surf, "BSpline", False, (), (0.0, 1.0, 0.0, 1.0))
+    g = _FaceGeometry(face, 1.0, TOL)  # sliver 1e-8
+    lines = np.array([0.2, 0.5, 0.5 + 5e-6, 0.5 + 1e-4])
+    out = _merge_thin(lines, {0.5 + 5e-6}, face, g)
+    # 0.5 and 0.5 + 5e-6 are 5e-9 apart at most: merged, the knot line kept; 1e-4 -> 1e-7: kept
+    np.testing.assert_array_equal(out, [0.2, 0.5 + 5e-6, 0.5 + 1e-4])
