@@ -1196,7 +1196,11 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
             if not frt.problems:
                 left_t = _unshared_rungs(frt, slide)
                 room = _TURN_GROWTH * (len(fr.patches) + left - left_t)
-                if fr.problems or (left_t < left and len(frt.patches) <= room):
+                # and never at the price of repairs: turned, a thin blend's short sides that wiggle
+                # by 2e-5 in v were flattened onto iso-lines (a 7e-4 move), left unshared as rungs
+                # at that distance from their edge (bug33398: a 1.35e-3 gap)
+                repairs = frt.closure <= fr.closure + 0.1 * slide
+                if fr.problems or (left_t < left and repairs and len(frt.patches) <= room):
                     model.faces[i], fr = turned, frt
         faces.append(fr)
         if progress is not None:
