@@ -35,9 +35,9 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     ``progress(stage_name, total)`` returns a callable advanced by one per item (faces for untrim
     and verify, patches for build), or None.
     Raises WatertightError (one line, naming the file) on any failure, before anything is written.
-    ``keep``, when given, receives the measured input ("inspection"), the patches ("result") and,
-    after a full conversion's read-back, the written file's measurement ("read_back"), for the
-    HTML pictures.
+    ``keep``, when given, receives the measured input ("inspection"), the patches ("result"), in a
+    full conversion the joined B-rep ("shape", for diagnostics) and, after the read-back, the
+    written file's measurement ("read_back"), for the HTML pictures.
     """
     from .inspect import inspect
     from .occ.build import input_face_areas, open_shell, patch_face

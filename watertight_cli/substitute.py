@@ -427,11 +427,17 @@ def _refs(patch: Patch, fr_pieces, eps, slide: float = 0.0) -> tuple[dict[str, _
             out[name] = None
         else:
             out[name] = _Ref(side.edge, side.w0, side.w1, pole=side.degenerate)
-    xyz = _cartesian(patch.ctrl, patch.rational)
-    for name, c, row in (("left", cm[0], xyz[0]), ("right", cm[1], xyz[-1])):
-        length = float(np.linalg.norm(np.diff(row, axis=0), axis=1).sum())  # bounds the side's length
-        out[name] = _rung_ref(fr_pieces, c[0], c[1], eps, length, slide)
+    for k, name in enumerate(("left", "right")):
+        out[name] = _rung_ref(fr_pieces, cm[k, 0], cm[k, 1], eps, _side_length(patch, k), slide)
     return out, cm
+
+
+def _side_length(patch: Patch, k: int) -> float:
+    """The control polygon's length (a bound of the side's length) of the left (``k`` 0) or right
+    (1) side of a patch."""
+    row = patch.ctrl[0 if k == 0 else -1]
+    xyz = row[:, :3] / row[:, 3:4] if patch.rational else row
+    return float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum())
 
 
 def _cartesian(H: np.ndarray, rational: bool) -> np.ndarray:

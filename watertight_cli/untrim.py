@@ -1212,23 +1212,21 @@ def _unshared_rungs(fr: FaceResult, slide: float) -> int:
     """Rungs of the face's cells that run along one of its edges but cannot take the edge's curve
     in stage 2 (by stage 2's own test, ``substitute._rung_ref``: the rung spans more than one plan
     piece, or the edge's parameter is too far from affine along it)."""
-    from .substitute import _rung_ref  # imported here: substitute imports this module
+    from .substitute import _rung_ref, _side_length  # imported here: substitute imports this module
 
-    ends = [(q, q.H[[0, -1], :2] / q.H[[0, -1], 2:3]) for q in fr.iso_pieces if not q.degenerate]
-    if not ends or fr.eps is None:
+    iso = [q for q in fr.iso_pieces if not q.degenerate]
+    if not iso or fr.eps is None:
         return 0
-    eps = fr.eps
+    ends = np.array([q.H[[0, -1], :2] / q.H[[0, -1], 2:3] for q in iso])  # (k, 2, 2)
+    qu, qlo, qhi = ends[:, 0, 0], ends[:, :, 1].min(axis=1), ends[:, :, 1].max(axis=1)
+    eu, ev = fr.eps
     n = 0
     for p in fr.patches:
         cm = cell_map(p, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
-        xyz = p.ctrl[..., :3] / p.ctrl[..., 3:4] if p.rational else p.ctrl
-        for (a, b), row in ((cm[0], xyz[0]), (cm[1], xyz[-1])):
-            lo, hi = min(a[1], b[1]) + eps[1], max(a[1], b[1]) - eps[1]
-            if not any(abs(e[0, 0] - a[0]) <= 2 * eps[0] and e[:, 1].min() < hi and e[:, 1].max() > lo
-                       for _, e in ends):
-                continue
-            length = float(np.linalg.norm(np.diff(row, axis=0), axis=1).sum())
-            n += _rung_ref(fr.iso_pieces, a, b, eps, length, slide) is None
+        for k, (a, b) in enumerate(cm):
+            lo, hi = min(a[1], b[1]) + ev, max(a[1], b[1]) - ev
+            if np.any((np.abs(qu - a[0]) <= 2 * eu) & (qlo < hi) & (qhi > lo)):  # along an edge
+                n += _rung_ref(fr.iso_pieces, a, b, fr.eps, _side_length(p, k), slide) is None
     return n
 
 
