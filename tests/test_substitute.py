@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from watertight_cli.core.bernstein import product
 from watertight_cli.core.bezier import curve_eval, curve_segment
+from watertight_cli import substitute as S
 from watertight_cli.substitute import _divide, _through, _weight_factor, substitute
 from watertight_cli.tolerances import Tolerances
 
@@ -290,3 +291,27 @@ def test_rung_may_slide_along_its_side_within_the_budget():
     assert _affine_enough(H, 1.0, 1e-12, 10.0, 1.0)
     even = np.array([[0.0, 0.0, 1.0], [0.0, 1 / 3, 1.0], [0.0, 2 / 3, 1.0], [0.0, 1.0, 1.0]])
     assert _affine_enough(even, 1.0, 1e-12, 10.0, 0.0)
+
+
+def test_refit_follows_moved_rows_without_growing_the_net():
+    """A near-polynomial rational patch (weights 1 + 1e-4) whose bottom row moved 4e-4 with
+    slightly other weights: the refit follows the move (wing_fuselage: nets grew 4-25 times when
+    the inside was fitted to the unmoved surface, and the patches kept their stage-1 rows)."""
+    rng = np.random.default_rng(7)
+    m, n = 16, 6
+    s, t = np.linspace(0, 1, m)[:, None], np.linspace(0, 1, n)[None, :]
+    xyz = np.stack(np.broadcast_arrays(0.3 * s, 0.05 * t, 0.02 * np.sin(3 * s) * t), axis=-1)
+    w = 1.0 + 1e-4 * rng.random((m, n))
+    old = np.concatenate([xyz * w[..., None], w[..., None]], axis=-1)
+    new = old.copy()
+    d = 4e-4 * np.array([0.3, 1.0, -0.5])
+    nw = w[:, 0] * (1 + 2e-4 * rng.random(m))
+    new[:, 0] = np.concatenate([(xyz[:, 0] + d) * nw[:, None], nw[:, None]], axis=1)
+    out = S._refit(old, new)
+
+    def span(H):
+        return np.ptp((H[..., :3] / H[..., 3:4]).reshape(-1, 3), axis=0).max()
+
+    assert span(out) <= 1.01 * span(old)
+    assert np.array_equal(out[:, 0], new[:, 0])
+    assert S._change(old, out, True)[0] <= 1.01 * np.linalg.norm(d)

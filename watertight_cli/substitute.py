@@ -488,8 +488,8 @@ def _change(old: np.ndarray, new: np.ndarray, rational: bool) -> tuple[float, bo
 def _refit(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     """A rational patch whose weights changed (a row took a K with other weights): refit its inner
     control points (all but the four sides, which neighbours share) so the surface stays on the
-    stage-1 patch. With the new weights fixed the fit is linear: sum_ij B_i B_j w_ij P_ij = D(s, t)
-    S(s, t), solved by least squares on a Chebyshev grid. In the unknowns Q_ij = w_ij P_ij the
+    stage-1 patch, moved as its rows and corners moved. With the new weights fixed the fit is
+    linear: sum_ij B_i B_j w_ij P_ij = D(s, t) S(s, t), solved by least squares on a Chebyshev grid. In the unknowns Q_ij = w_ij P_ij the
     system is the Kronecker product of the two inner basis matrices, so its least-squares solution
     is pinv(Bs) R pinv(Bt)^T: two small pseudo-inverses instead of one dense solve (which took
     most of the conversion time of models refit at degree 24)."""
@@ -500,7 +500,11 @@ def _refit(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     t = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, 2 * n1 + 1))
     bs, bt = basis(m1 - 1, s), basis(n1 - 1, t)
     target = np.einsum("ai,bj,ijd->abd", bs, bt, old)
-    S = target[..., :3] / target[..., 3:4]
+    # the old surface plus the move of the net (rows, corners) blended as in a polynomial patch:
+    # fitting the old surface itself would ask the inside to bend back from moved rows within
+    # the patch, which a high-degree net can only do with huge control points
+    move = _cartesian(new, True) - _cartesian(old, True)
+    S = target[..., :3] / target[..., 3:4] + np.einsum("ai,bj,ijd->abd", bs, bt, move)
     w = new[..., 3]
     D = bs @ w @ bt.T
     fixed = new[..., :3].copy()
