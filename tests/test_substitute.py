@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from watertight_cli import substitute as S
 from watertight_cli.core.bernstein import product
 from watertight_cli.core.bezier import curve_eval, curve_segment
-from watertight_cli import substitute as S
 from watertight_cli.substitute import _divide, _through, _weight_factor, substitute
 from watertight_cli.tolerances import Tolerances
 
@@ -130,8 +130,8 @@ def test_fixture_converts_with_invariants(tmp_path, name):
         assert rep["after"]["volume_change_rel"] <= max(1e-6, 20 * rep["before"]["gap_max"] / rep["diagonal"])
 
 
-@pytest.mark.xfail(strict=True, reason="known: filleted_freeform has edges up to 9.4e-10 apart (I2: 1e-12 of the "
-                                       "diagonal is 9.1e-11) -- issue #5 is open")
+@pytest.mark.xfail(strict=True, reason="known: filleted_freeform has edges up to 9.4e-10 apart (I2: 1e-12 of "
+                                       "the diagonal is 9.1e-11) -- issue #5 is open")
 @pytest.mark.parametrize("name", ["filleted_freeform.step"])
 def test_fixture_known_failures(tmp_path, name):
     from watertight_cli.convert import convert_file

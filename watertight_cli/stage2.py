@@ -21,7 +21,6 @@ from .tolerances import Tolerances
 def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None, progress,
            overwrite: bool, fast: bool, keep: dict | None = None) -> dict:
     from .occ.assemble import input_groups, is_valid, join, volume
-    from .occ.build import patch_face
     from .occ.io import write_shape
     from .report import edge_gap_rows
     from .substitute import substitute
@@ -37,16 +36,9 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
 
     t = time.perf_counter()
     tick = progress("build", len(result.patches)) if progress else None
-    groups = []
-    for faces, solid in input_groups(ins.shape):
-        built = []
-        for i in faces:
-            for p in result.faces[i].patches:
-                built.append(patch_face(p.ctrl, p.rational, model.faces[i].reversed))
-                if tick is not None:
-                    tick(1)
-        groups.append((built, solid))
-    shape, joined = join(groups, model.diagonal, src)
+    groups = [([(p.ctrl, p.rational, model.faces[i].reversed) for i in faces
+                for p in result.faces[i].patches], solid) for faces, solid in input_groups(ins.shape)]
+    shape, joined = join(groups, model.diagonal, src, tick)
     if keep is not None:
         keep["shape"] = shape
     valid = is_valid(shape)

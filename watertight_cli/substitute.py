@@ -489,10 +489,11 @@ def _refit(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     """A rational patch whose weights changed (a row took a K with other weights): refit its inner
     control points (all but the four sides, which neighbours share) so the surface stays on the
     stage-1 patch, moved as its rows and corners moved. With the new weights fixed the fit is
-    linear: sum_ij B_i B_j w_ij P_ij = D(s, t) S(s, t), solved by least squares on a Chebyshev grid. In the unknowns Q_ij = w_ij P_ij the
-    system is the Kronecker product of the two inner basis matrices, so its least-squares solution
-    is pinv(Bs) R pinv(Bt)^T: two small pseudo-inverses instead of one dense solve (which took
-    most of the conversion time of models refit at degree 24)."""
+    linear: sum_ij B_i B_j w_ij P_ij = D(s, t) S(s, t), solved by least squares on a Chebyshev
+    grid. In the unknowns Q_ij = w_ij P_ij the system is the Kronecker product of the two inner
+    basis matrices, so its least-squares solution is pinv(Bs) R pinv(Bt)^T: two small
+    pseudo-inverses instead of one dense solve (which took most of the conversion time of models
+    refit at degree 24)."""
     m1, n1 = new.shape[:2]
     if m1 < 3 or n1 < 3:
         return new

@@ -1,28 +1,29 @@
 """Stage 2's B-rep: patch faces joined into shells and solids along their shared boundaries.
 
 After substitution, two patches that touch have the same boundary curve (the same control points,
-or a subdivision of the same curve where a T-vertex splits one side). The faces are built one per
-patch (``build.patch_face``) and joined per input shell by ``BRepBuilderAPI_Sewing`` at a tolerance
-far below any feature (``JOIN_REL`` x diagonal): it finds the coincident edges, merges them into one
-edge with two pcurves, and splits a long side at a T-vertex of its neighbours. A shell that was closed
-in the input becomes a solid again; its orientation is checked by its volume.
+or a subdivision of the same curve where a T-vertex splits one side). ``topology.connect`` finds
+that structure from the patches (one vertex per corner, T-vertices, one edge per shared piece, at
+``JOIN_REL`` x diagonal) and ``build.joined_faces`` builds it with ``BRep_Builder``: the pcurves are
+straight segments on the sides of [0, 1]^2 and same-parameter by construction. (Sewing, used
+before, recomputed pcurves by projection: some came back curved or off the sides, a pole's
+degenerated edge was dropped, and such faces read back as trimmed.) A shell that was closed in
+the input becomes a solid again; its orientation is checked by its volume.
 """
 
 from __future__ import annotations
 
 from OCP.BRep import BRep_Builder
-from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeSolid, BRepBuilderAPI_Sewing
+from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeSolid
 from OCP.BRepGProp import BRepGProp
 from OCP.GProp import GProp_GProps
 from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
-from OCP.TopoDS import TopoDS, TopoDS_Compound, TopoDS_Shape
+from OCP.TopoDS import TopoDS_Compound, TopoDS_Shape, TopoDS_Shell
 
 from ..errors import KernelError
 from .extract import indexed
-from .io import quiet
 
-#: sewing tolerance relative to the diagonal: shared boundaries coincide to rounding, and no patch
+#: joining tolerance relative to the diagonal: shared boundaries coincide to rounding, and no patch
 #: side is shorter than a sliver (1e-8 x diagonal, ``Tolerances.sliver_rel``)
 JOIN_REL = 1e-9
 
@@ -73,38 +74,44 @@ def _volume(shape, eps: float | None = None) -> float:
     return float(props.Mass())
 
 
-def join(groups: list[tuple[list, bool]], diagonal: float, path: str) -> tuple[TopoDS_Shape, dict]:
-    """Sew each group of built faces; solids where the group was a solid's shell. Returns the
-    compound and counts (free edges left, shells, solids)."""
+def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None) -> tuple[TopoDS_Shape, dict]:
+    """Faces of each group of patches ``(ctrl, rational, reversed)`` bounded by shared edges
+    (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
+    connected part; a solid where the group was a solid's shell and no edge is left free. Returns
+    the compound and counts (free edges left, shells, solids, T-vertices, largest edge deviation)."""
+    from ..topology import connect, flat
+    from .build import joined_faces
+
     builder = BRep_Builder()
     out = TopoDS_Compound()
     builder.MakeCompound(out)
-    info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0}
-    for faces, solid in groups:
-        if not faces:
+    info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0, "t_vertices": 0,
+            "edge_deviation_max": 0.0, "flat_patches": 0}
+    for nets, solid in groups:
+        if not nets:
             continue
-        sewer = BRepBuilderAPI_Sewing(JOIN_REL * diagonal, True, True, True, False)
-        for f in faces:
-            sewer.Add(f)
-        with quiet():
-            sewer.Perform()
-        sewn = sewer.SewedShape()
-        if sewn is None or sewn.IsNull():
-            raise KernelError(f"{path}: joining the patches failed")
-        info["free_edges"] += sewer.NbFreeEdges()
-        ex = TopExp_Explorer(sewn, TopAbs_SHELL)
-        shells = []
-        while ex.More():
-            shells.append(TopoDS.Shell_s(ex.Current()))
-            ex.Next()
-        if not shells:  # a single face
-            builder.Add(out, sewn)
-            continue
-        for shell in shells:
+        eps = JOIN_REL * diagonal
+        keep = [n for n in nets if not flat(n[0], n[1], eps)]
+        info["flat_patches"] += len(nets) - len(keep)
+        nets = keep
+        topo = connect([(c, r) for c, r, _ in nets], eps)
+        faces = joined_faces(nets, topo, tick)
+        free = topo.free_edges
+        info["free_edges"] += free
+        info["t_vertices"] += topo.t_vertices
+        info["edge_deviation_max"] = max([info["edge_deviation_max"]]
+                                         + [m.deviation for e in topo.edges for m in e.members])
+        for part in topo.components():
+            shell = TopoDS_Shell()
+            builder.MakeShell(shell)
+            for i in part:
+                builder.Add(shell, faces[i])
+            closed = all(len(topo.edges[e].members) >= 2 or topo.edges[e].degenerate
+                         for i in part for segs in topo.wires[i].values() for e, _ in segs)
+            shell.Closed(closed)
             info["shells"] += 1
-            if solid and sewer.NbFreeEdges() == 0:
-                maker = BRepBuilderAPI_MakeSolid(shell)
-                body = maker.Solid()
+            if solid and free == 0:
+                body = BRepBuilderAPI_MakeSolid(shell).Solid()
                 if _volume(body) < 0:
                     body.Reverse()
                 builder.Add(out, body)
@@ -113,6 +120,8 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str) -> tuple[T
                 if solid:
                     info["open_solid_shells"] += 1
                 builder.Add(out, shell)
+    if out.IsNull():
+        raise KernelError(f"{path}: joining the patches failed")
     return out, info
 
 

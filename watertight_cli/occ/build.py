@@ -15,12 +15,13 @@ from OCP.Geom2d import Geom2d_Line
 from OCP.gp import gp_Dir2d, gp_Pnt, gp_Pnt2d
 from OCP.GProp import GProp_GProps
 from OCP.TColgp import TColgp_Array2OfPnt
-from OCP.TColStd import TColStd_Array2OfReal
+from OCP.TColStd import TColStd_Array1OfReal, TColStd_Array2OfReal
 from OCP.TopAbs import TopAbs_FACE, TopAbs_FORWARD, TopAbs_REVERSED
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Edge, TopoDS_Face, TopoDS_Shell, TopoDS_Vertex, TopoDS_Wire
 
 from ..errors import KernelError
+from ..topology import side_row
 from .extract import indexed
 
 #: tolerance given to the built faces' edges and vertices (model units): OCCT's confusion value
@@ -140,3 +141,141 @@ def input_face_areas(shape) -> np.ndarray:
     the model's face numbering."""
     fmap = indexed(shape, TopAbs_FACE)
     return np.array([face_area(TopoDS.Face_s(fmap.FindKey(i))) for i in range(1, fmap.Extent() + 1)])
+
+
+# ------------------------------------------------------------------ faces joined by shared edges
+
+_SIDE_UV = {  # side -> (uv at side parameter 0, d uv / d s)
+    "bottom": ((0.0, 0.0), (1.0, 0.0)),
+    "right": ((1.0, 0.0), (0.0, 1.0)),
+    "top": ((0.0, 1.0), (1.0, 0.0)),
+    "left": ((0.0, 0.0), (0.0, 1.0)),
+}
+_TRAVERSAL = {"bottom": 1.0, "right": 1.0, "top": -1.0, "left": -1.0}  # wire direction along s
+
+
+def _side_uv(side: str, s: float) -> gp_Pnt2d:
+    (u0, v0), (du, dv) = _SIDE_UV[side]
+    return gp_Pnt2d(u0 + s * du, v0 + s * dv)
+
+
+def _pcurve(side: str, s0: float, s1: float, w: float):
+    """The straight pcurve of a side piece: edge parameter a in [0, 1] to the side's s from s0 to
+    s1 (affine, or the rational linear map with end weights 1 and w)."""
+    from OCP.Geom2d import Geom2d_BSplineCurve
+    from OCP.TColgp import TColgp_Array1OfPnt2d
+    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal
+
+    poles = TColgp_Array1OfPnt2d(1, 2)
+    poles.SetValue(1, _side_uv(side, s0))
+    poles.SetValue(2, _side_uv(side, s1))
+    knots = TColStd_Array1OfReal(1, 2)
+    knots.SetValue(1, 0.0)
+    knots.SetValue(2, 1.0)
+    mults = TColStd_Array1OfInteger(1, 2)
+    mults.SetValue(1, 2)
+    mults.SetValue(2, 2)
+    if w == 1.0:
+        return Geom2d_BSplineCurve(poles, knots, mults, 1)
+    weights = TColStd_Array1OfReal(1, 2)
+    weights.SetValue(1, 1.0)
+    weights.SetValue(2, float(w))
+    return Geom2d_BSplineCurve(poles, weights, knots, mults, 1)
+
+
+def _segment_curve(row: np.ndarray, t0: float, t1: float, rational: bool):
+    """The piece [t0, t1] of a side's Bezier curve (homogeneous row) as a Bezier curve on [0, 1].
+    An edge on its curve's whole range: a STEP reader finds the edge's parameters by projecting
+    its vertices, which is exact only at the curve's ends (a sub-range came back 1e-8 off)."""
+    from OCP.Geom import Geom_BezierCurve
+    from OCP.TColgp import TColgp_Array1OfPnt
+
+    from ..core.bezier import curve_segment
+
+    seg = curve_segment(row, t0, t1) if (t0, t1) != (0.0, 1.0) else row
+    poles = TColgp_Array1OfPnt(1, len(seg))
+    for i, h in enumerate(seg):
+        poles.SetValue(i + 1, gp_Pnt(*map(float, h[:3] / h[3])))
+    if not rational:
+        return Geom_BezierCurve(poles)
+    weights = TColStd_Array1OfReal(1, len(seg))
+    for i, h in enumerate(seg):
+        weights.SetValue(i + 1, float(h[3]))
+    return Geom_BezierCurve(poles, weights)
+
+
+def joined_faces(nets: list[tuple[np.ndarray, bool, bool]], topo, tick=None) -> list[TopoDS_Face]:
+    """Faces of the patches ``(ctrl, rational, reversed)`` bounded by the shared edges of ``topo``
+    (``topology.connect`` on the same patches): one edge per shared boundary piece, one vertex per
+    corner, straight pcurves on the sides of [0, 1]^2, same-parameter by construction. An edge's
+    tolerance covers the deviation its members were measured with."""
+    B = BRep_Builder()
+    surfaces = [bezier_surface(ctrl, rational) for ctrl, rational, _ in nets]
+    faces = []
+    for surf in surfaces:
+        f = TopoDS_Face()
+        B.MakeFace(f, surf, TopLoc_Location(), FACE_TOLERANCE)
+        faces.append(f)
+    edge_tol = [max(FACE_TOLERANCE, 2.0 * max(m.deviation for m in e.members)) for e in topo.edges]
+    vtol = np.maximum(FACE_TOLERANCE, 2.0 * topo.vertex_tolerance)
+    for e, tol in zip(topo.edges, edge_tol, strict=True):
+        vtol[e.va] = max(vtol[e.va], tol)
+        vtol[e.vb] = max(vtol[e.vb], tol)
+    vertices: dict[int, TopoDS_Vertex] = {}
+
+    def vertex(i: int) -> TopoDS_Vertex:
+        if i not in vertices:
+            vx = TopoDS_Vertex()
+            B.MakeVertex(vx, gp_Pnt(*map(float, topo.vertices[i])), float(vtol[i]))
+            vertices[i] = vx
+        return vertices[i]
+
+    # the orientation each member's edge has in its face's wire
+    def sense(m) -> bool:  # True: FORWARD
+        return ((m.s1 - m.s0) * _TRAVERSAL[m.side] > 0) if m.s1 != m.s0 else _TRAVERSAL[m.side] > 0
+
+    built: list[TopoDS_Edge] = []
+    for e, tol in zip(topo.edges, edge_tol, strict=True):
+        edge = TopoDS_Edge()
+        B.MakeEdge(edge)
+        if e.degenerate:
+            m = e.owner
+            B.Degenerated(edge, True)
+            B.UpdateEdge(edge, _pcurve(m.side, 0.0, 1.0, 1.0), faces[m.patch], tol)
+        else:
+            o = e.owner
+            ctrl, rational, _ = nets[o.patch]
+            B.UpdateEdge(edge, _segment_curve(side_row(ctrl, rational, o.side), e.t0, e.t1, rational), tol)
+            per_patch: dict[int, list] = {}
+            for m in e.members:
+                per_patch.setdefault(m.patch, []).append(m)
+            for p, ms in per_patch.items():
+                curves = [(_pcurve(m.side, m.s0, m.s1, m.w), sense(m)) for m in ms]
+                if len(curves) == 1:
+                    B.UpdateEdge(edge, curves[0][0], faces[p], tol)
+                else:  # a seam of one patch: the first pcurve is for the FORWARD use
+                    curves.sort(key=lambda c: not c[1])
+                    B.UpdateEdge(edge, curves[0][0], curves[1][0], faces[p], tol)
+        B.Range(edge, 0.0, 1.0)
+        B.Add(edge, vertex(e.va).Oriented(TopAbs_FORWARD))
+        B.Add(edge, vertex(e.vb).Oriented(TopAbs_REVERSED))
+        B.SameParameter(edge, True)
+        B.SameRange(edge, True)
+        built.append(edge)
+
+    out = []
+    for i, (wire_map, (_, _, reversed_)) in enumerate(zip(topo.wires, nets, strict=True)):
+        wire = TopoDS_Wire()
+        B.MakeWire(wire)
+        for side in ("bottom", "right", "top", "left"):
+            segs = wire_map[side] if _TRAVERSAL[side] > 0 else wire_map[side][::-1]
+            for e_id, k in segs:
+                m = topo.edges[e_id].members[k]
+                B.Add(wire, built[e_id].Oriented(TopAbs_FORWARD if sense(m) else TopAbs_REVERSED))
+        wire.Closed(True)
+        B.Add(faces[i], wire)
+        B.NaturalRestriction(faces[i], True)
+        out.append(TopoDS.Face_s(faces[i].Reversed()) if reversed_ else faces[i])
+        if tick is not None:
+            tick(1)
+    return out

@@ -1,0 +1,124 @@
+"""The output topology worked out from the patches (``topology``) and the B-rep built on it."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from watertight_cli.core.bezier import surface_subbox
+from watertight_cli.topology import connect, flat, project
+
+EPS = 1e-9
+
+
+def _net(x0, x1, y0, y1, degree=(3, 2), bump=0.0):
+    """A polynomial patch over [x0, x1] x [y0, y1] of a fixed curved surface z = f(x, y), exactly
+    (a sub-box of one Bezier net), so neighbouring boxes share their boundaries."""
+    m, n = degree
+    s, t = np.linspace(0, 1, m + 1)[:, None], np.linspace(0, 1, n + 1)[None, :]
+    base = np.stack(np.broadcast_arrays(4.0 * s, 3.0 * t, bump * (s * s - t) + 0.0 * s), axis=-1)
+    return surface_subbox(base, x0, x1, y0, y1)
+
+
+def test_shared_side_is_one_affine_edge():
+    a, b = _net(0, 0.5, 0, 1), _net(0.5, 1, 0, 1)
+    topo = connect([(a, False), (b, False)], EPS)
+    shared = [e for e in topo.edges if len(e.members) == 2]
+    assert len(shared) == 1
+    e = shared[0]
+    assert {(m.patch, m.side) for m in e.members} == {(0, "right"), (1, "left")}
+    assert all(m.w == 1.0 and m.deviation <= 1e-14 for m in e.members)
+    assert topo.free_edges == 6 and topo.t_vertices == 0
+    assert len(topo.vertices) == 6
+
+
+@given(cut=st.floats(0.05, 0.95), bump=st.floats(-1.0, 1.0))
+@settings(max_examples=25, deadline=None)
+def test_t_vertex_splits_the_long_side(cut, bump):
+    """One patch below, two above split at ``cut``: the long top side is cut at the T-vertex and
+    each piece is one edge with a short bottom side, mapped affinely."""
+    low = _net(0, 1, 0, 0.5, bump=bump)
+    left, right = _net(0, cut, 0.5, 1, bump=bump), _net(cut, 1, 0.5, 1, bump=bump)
+    topo = connect([(low, False), (left, False), (right, False)], EPS)
+    sides = (topo.wires[0]["top"], topo.wires[1]["bottom"], topo.wires[2]["bottom"])
+    assert [len(segs) for segs in sides] == [2, 1, 1]
+    assert topo.t_vertices == 1
+    for e_id, _ in topo.wires[0]["top"]:
+        e = topo.edges[e_id]
+        assert len(e.members) == 2
+        assert max(m.deviation for m in e.members) <= 1e-12
+    assert topo.free_edges == 3 + 2 + 2  # low: bottom, left, right; each upper one: its outer two
+    free = {(e.members[0].patch, e.members[0].side) for e in topo.edges if len(e.members) == 1}
+    assert (0, "top") not in free and (1, "bottom") not in free and (2, "bottom") not in free
+
+
+def test_moebius_reparameterized_side_gets_a_rational_map():
+    """A rational side run at another speed (a Moebius change of parameter keeps the curve): the
+    member's map is the rational linear one, and the deviation it leaves is rounding."""
+    w = np.array([1.0, 0.7, 1.3, 1.0])
+    row = np.array([[0, 0, 0], [1, 0.5, 0], [2, 0.2, 0.3], [3, 0, 0]], float)
+    H = np.concatenate([row * w[:, None], w[:, None]], axis=1)
+    rho = 1.6  # Moebius: weights times rho**i keep the curve, change its speed
+    H2 = H * (rho ** np.arange(4))[:, None]
+    up = np.array([0.0, 0.0, 1.0, 0.0])
+
+    def patch(side_row):
+        return np.stack([side_row, side_row + up], axis=1)  # bottom = side_row (axis 0)
+
+    a, b = patch(H), patch(H2)[:, ::-1]  # b's top is the same curve
+    topo = connect([(a, True), (b, True)], EPS)
+    e = next(e for e in topo.edges if (0, "bottom") in {(m.patch, m.side) for m in e.members})
+    assert [(m.patch, m.side) for m in e.members] == [(0, "bottom"), (1, "top")]
+    other = e.members[1]
+    assert other.w != 1.0
+    assert other.deviation <= 1e-12
+
+
+def test_different_curves_between_two_vertices_stay_apart():
+    """Two sides with the same end points but different curves are not one edge."""
+    a = _net(0, 1, 0, 0.5)
+    b = a.copy()
+    b[1:-1, 0, 2] += 0.3  # b's bottom bulges; its other sides are a's
+    topo = connect([(a, False), (b, False)], EPS)
+    bottoms = [e for e in topo.edges if any(m.side == "bottom" for m in e.members)]
+    assert len(bottoms) == 2 and all(len(e.members) == 1 for e in bottoms)
+    assert sum(len(e.members) == 2 for e in topo.edges) == 3
+
+
+def test_flat_patch():
+    a = _net(0, 1, 0, 1)
+    line = np.repeat(a[:, :1], 3, axis=1)
+    assert flat(line, False, EPS)
+    assert not flat(a, False, EPS)
+
+
+def test_project_finds_the_closest_parameter():
+    from watertight_cli.core.bernstein import basis
+
+    xyz = np.array([[0, 0, 0], [1, 2, 0], [2, -1, 1], [3, 0, 0]], float)
+    row = np.concatenate([xyz, np.ones((4, 1))], axis=1)
+    ts = np.array([0.1, 0.37, 0.8])
+    s, d = project(row, (basis(3, ts) @ row)[:, :3])
+    assert np.allclose(s, ts, atol=1e-12) and d.max() <= 1e-12
+
+
+def test_built_faces_are_valid_and_untrimmed(tmp_path, tol):
+    """Five patches of one surface with a T-vertex, built on the topology and written: valid,
+    every face's pcurves straight on the sides of [0, 1]^2 after reading back, one edge per
+    shared piece."""
+    from watertight_cli.inspect import inspect, trimmed
+    from watertight_cli.occ.assemble import is_valid, join
+    from watertight_cli.occ.io import write_shape
+
+    nets = [_net(0, 1, 0, 0.5, bump=0.4), _net(0, 0.3, 0.5, 1, bump=0.4), _net(0.3, 1, 0.5, 1, bump=0.4)]
+    shape, info = join([([(n, False, False) for n in nets], False)], 5.0, "test")
+    assert is_valid(shape)
+    assert info["shells"] == 1 and info["t_vertices"] == 1
+    assert info["free_edges"] == 3 + 2 + 2
+    out = tmp_path / "t.step"
+    write_shape(shape, out)
+    m = inspect(str(out), tol).model
+    assert len(m.faces) == 3
+    assert not any(trimmed(f) for f in m.faces)
+    assert sum(1 for e in m.edges if e.uses == 2) == 3

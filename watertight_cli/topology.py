@@ -1,0 +1,312 @@
+"""The output B-rep's topology, worked out from the patches themselves (arrays in, arrays out).
+
+After stage 2, two patches that touch have the same boundary curve: the same control points, or
+a piece of it where a T-vertex splits the longer side. This module finds that structure directly:
+
+- **vertices**: the patch corners, clustered within ``eps`` (one vertex per corner point);
+- **T-vertices**: vertices that lie on the inside of a patch side (within ``eps``), found with a
+  k-d tree over the vertices and a projection onto the side's Bezier curve;
+- **segments**: every side cut at its T-vertices; a segment runs between two vertices;
+- **edges**: segments with the same two end vertices whose curves coincide (the midpoint of one
+  lies on the other within ``eps``) are one edge. The first is the edge's *owner*: the edge's 3D
+  curve is the owner's side, restricted to the segment's parameter range.
+
+Each other member of an edge gets a parameter map from the edge's parameter t (the owner's side
+parameter) to its own side parameter s. Bezier subdivision keeps the parameter affine, so the map
+is usually ``s = s0 + (t - t0) (s1 - s0) / (t1 - t0)`` and the member's pcurve is a straight
+segment on the side of [0, 1]^2 that is exactly same-parameter. A rational side whose weights were
+changed by a Moebius transformation (``substitute._put``) runs along the same curve at another
+speed; its map is then the rational linear (Moebius) one, still a straight segment, fitted
+through the midpoint. The deviation that remains is measured and returned, so the builder can
+give the edge an honest tolerance.
+
+A side whose control points all coincide (a pole, a collapsed rung) is *degenerate*: it keeps one
+vertex and no 3D curve.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .core.bernstein import basis
+
+#: the four sides of a patch net as (row of the net, corner at s = 0, corner at s = 1); the side
+#: parameter runs along the net's axis 0 for bottom/top and axis 1 for left/right
+SIDE_ROWS = {
+    "bottom": ((slice(None), 0), (0, 0), (1, 0)),
+    "right": ((-1, slice(None)), (1, 0), (1, 1)),
+    "top": ((slice(None), -1), (0, 1), (1, 1)),
+    "left": ((0, slice(None)), (0, 0), (0, 1)),
+}
+SIDE_NAMES = tuple(SIDE_ROWS)
+_CORNERS = ((0, 0), (1, 0), (1, 1), (0, 1))
+_COLLAPSED_REL = 1e-12  # a side whose control points stay this close (x patch size) is one point
+_CHECK = np.array([0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875])  # where parameter maps are measured
+
+
+@dataclass
+class Member:
+    """One patch side's use of an edge: the edge's parameter a in [0, 1] (a = (t - t0) / (t1 - t0)
+    on the owner's side parameter t) maps to this side's parameter
+    s(a) = ((1 - a) s0 + a w s1) / ((1 - a) + a w); w = 1 is affine."""
+
+    patch: int
+    side: str
+    s0: float
+    s1: float
+    w: float = 1.0
+    deviation: float = 0.0  # max distance between the owner's curve and this side at mapped parameters
+
+
+@dataclass
+class TopoEdge:
+    va: int
+    vb: int
+    t0: float
+    t1: float
+    members: list[Member]  # members[0] is the owner (s0 = t0, s1 = t1)
+    degenerate: bool = False
+
+    @property
+    def owner(self) -> Member:
+        return self.members[0]
+
+
+@dataclass
+class Topology:
+    vertices: np.ndarray  # (V, 3)
+    vertex_tolerance: np.ndarray  # (V,) largest distance from a vertex to a corner or curve end it stands for
+    edges: list[TopoEdge]
+    # per patch, per side name: the side's edges in increasing side parameter, as (edge, member index)
+    wires: list[dict[str, list[tuple[int, int]]]] = field(default_factory=list)
+
+    @property
+    def free_edges(self) -> int:
+        return sum(1 for e in self.edges if not e.degenerate and len(e.members) == 1)
+
+    @property
+    def t_vertices(self) -> int:
+        return sum(max(0, len(segs) - 1) for w in self.wires for segs in w.values())
+
+    def components(self) -> list[list[int]]:
+        """Patches connected through shared edges, each list in increasing patch order."""
+        n = len(self.wires)
+        rows, cols = [], []
+        for e in self.edges:
+            first = e.members[0].patch
+            for m in e.members[1:]:
+                rows.append(first)
+                cols.append(m.patch)
+        graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+        count, labels = connected_components(graph, directed=False)
+        out: list[list[int]] = [[] for _ in range(count)]
+        for i, lab in enumerate(labels):
+            out[lab].append(i)
+        return out
+
+
+# ------------------------------------------------------------------------------ curves of the sides
+
+
+def side_row(ctrl: np.ndarray, rational: bool, side: str) -> np.ndarray:
+    """(n+1, 4) homogeneous control points of one side (weights 1 for a polynomial patch)."""
+    row = np.asarray(ctrl[SIDE_ROWS[side][0]], dtype=float)
+    if not rational:
+        row = np.concatenate([row, np.ones((len(row), 1))], axis=1)
+    return row
+
+
+def _evaluate(row: np.ndarray, s: np.ndarray) -> np.ndarray:
+    h = basis(len(row) - 1, np.clip(s, 0.0, 1.0)) @ row
+    return h[:, :3] / h[:, 3:4]
+
+
+def _derivatives(row: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """C, C', C'' of a homogeneous row at s (quotient rule on the homogeneous derivatives)."""
+    n = len(row) - 1
+    h = basis(n, s) @ row
+    d1 = basis(n - 1, s) @ (n * np.diff(row, axis=0)) if n >= 1 else np.zeros_like(h)
+    d2 = basis(n - 2, s) @ (n * (n - 1) * np.diff(row, 2, axis=0)) if n >= 2 else np.zeros_like(h)
+    w, w1, w2 = h[:, 3:4], d1[:, 3:4], d2[:, 3:4]
+    c = h[:, :3] / w
+    c1 = (d1[:, :3] - c * w1) / w
+    c2 = (d2[:, :3] - 2.0 * c1 * w1 - c * w2) / w
+    return c, c1, c2
+
+
+def project(row: np.ndarray, pts: np.ndarray, lo: float = 0.0,
+            hi: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Closest parameters in [lo, hi] of the side curve ``row`` to the points (k, 3), and the
+    distances: nearest of a dense sampling, then Newton on C'(s).(C(s) - p) = 0."""
+    pts = np.atleast_2d(pts)
+    n = len(row) - 1
+    grid = np.linspace(lo, hi, max(33, 4 * n + 1))
+    samples = _evaluate(row, grid)
+    d = np.linalg.norm(samples[None, :, :] - pts[:, None, :], axis=2)
+    s = grid[np.argmin(d, axis=1)]
+    for _ in range(12):
+        c, c1, c2 = _derivatives(row, s)
+        r = c - pts
+        f = np.einsum("ij,ij->i", c1, r)
+        df = np.einsum("ij,ij->i", c2, r) + np.einsum("ij,ij->i", c1, c1)
+        step = np.where(df > 0, f / np.where(df > 0, df, 1.0), 0.0)
+        s_new = np.clip(s - step, lo, hi)
+        if np.all(np.abs(s_new - s) <= 1e-15):
+            s = s_new
+            break
+        s = s_new
+    dist = np.linalg.norm(_evaluate(row, s) - pts, axis=1)
+    return s, dist
+
+
+def _moebius(a: np.ndarray, s0: float, s1: float, w: float) -> np.ndarray:
+    return ((1.0 - a) * s0 + a * w * s1) / ((1.0 - a) + a * w)
+
+
+# ---------------------------------------------------------------------------------------- topology
+
+
+def flat(ctrl: np.ndarray, rational: bool, eps: float) -> bool:
+    """A patch with no area: every row (or every column) of its net is one point within ``eps``,
+    so the patch is a curve (stage 1 can leave such a cell between two slab lines that meet)."""
+    xyz = ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl
+    return bool(np.linalg.norm(xyz - xyz[:, :1], axis=-1).max() <= eps
+                or np.linalg.norm(xyz - xyz[:1, :], axis=-1).max() <= eps)
+
+
+def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
+    """The topology of patches (``(ctrl, rational)`` each) whose shared boundaries coincide within
+    ``eps`` (model units). See the module docstring."""
+    P = len(nets)
+    if P == 0:
+        return Topology(np.zeros((0, 3)), np.zeros(0), [], [])
+    corners = np.empty((P, 4, 3))
+    collapsed = np.zeros((P, 4), dtype=bool)
+    rows: list[dict[str, np.ndarray]] = []
+    for i, (ctrl, rational) in enumerate(nets):
+        xyz = ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl
+        for k, (a, b) in enumerate(_CORNERS):
+            corners[i, k] = xyz[-a if a else 0, -b if b else 0]
+        scale = float(np.ptp(xyz.reshape(-1, 3), axis=0).max()) or 1.0
+        r = {name: side_row(ctrl, rational, name) for name in SIDE_NAMES}
+        rows.append(r)
+        for k, name in enumerate(SIDE_NAMES):
+            p = r[name][:, :3] / r[name][:, 3:4]
+            collapsed[i, k] = bool(np.max(np.linalg.norm(p - p[0], axis=1)) <= _COLLAPSED_REL * scale)
+
+    # vertices: corners within eps are one (connected components of the eps-graph)
+    flat = corners.reshape(-1, 3)
+    pairs = cKDTree(flat).query_pairs(eps, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(flat), len(flat)))
+    nv, label = connected_components(graph, directed=False)
+    counts = np.bincount(label, minlength=nv)
+    V = np.zeros((nv, 3))
+    np.add.at(V, label, flat)
+    V /= counts[:, None]
+    vtol = np.zeros(nv)
+    np.maximum.at(vtol, label, np.linalg.norm(flat - V[label], axis=1))
+    cid = label.reshape(P, 4)
+    side_corners = {"bottom": (0, 1), "right": (1, 2), "top": (3, 2), "left": (0, 3)}
+
+    # T-vertices: vertices on the inside of a side
+    tree = cKDTree(V)
+    live = [(i, k, name) for i in range(P) for k, name in enumerate(SIDE_NAMES) if not collapsed[i, k]]
+    xyz_rows = [rows[i][n][:, :3] / rows[i][n][:, 3:4] for i, _, n in live]
+    lo = np.array([r.min(axis=0) for r in xyz_rows]).reshape(-1, 3)
+    hi = np.array([r.max(axis=0) for r in xyz_rows]).reshape(-1, 3)
+    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1) + eps
+    near = tree.query_ball_point(centre, radius) if live else []
+    cuts: dict[tuple[int, str], list[tuple[float, int]]] = {}
+    for (i, _, name), cand, a, b in zip(live, near, lo, hi, strict=True):
+        ca, cb = side_corners[name]
+        ends = {cid[i, ca], cid[i, cb]}
+        cand = [c for c in cand if c not in ends]
+        if cand:
+            cand = np.array(cand)
+            inside = np.all((V[cand] >= a - eps) & (V[cand] <= b + eps), axis=1)
+            cand = cand[inside]
+        pts = [(0.0, int(cid[i, ca])), (1.0, int(cid[i, cb]))]
+        if len(cand):
+            s, dist = project(rows[i][name], V[cand])
+            for sv, dv, c in zip(s, dist, cand, strict=True):
+                if dv <= eps and 0.0 < sv < 1.0:
+                    pts.append((float(sv), int(c)))
+                    vtol[c] = max(vtol[c], float(dv))
+        cuts[(i, name)] = sorted(pts)
+
+    # segments, matched into edges by their end vertices and a midpoint test
+    wires: list[dict[str, list[tuple[int, int]]]] = [dict() for _ in range(P)]
+    edges: list[TopoEdge] = []
+    by_ends: dict[tuple[int, int], list[int]] = {}
+    for i in range(P):
+        for k, name in enumerate(SIDE_NAMES):
+            if collapsed[i, k]:
+                v = int(cid[i, side_corners[name][0]])
+                edges.append(TopoEdge(v, v, 0.0, 1.0, [Member(i, name, 0.0, 1.0)], degenerate=True))
+                wires[i][name] = [(len(edges) - 1, 0)]
+                continue
+            wires[i][name] = []
+            pts = cuts[(i, name)]
+            for (s0, v0), (s1, v1) in zip(pts[:-1], pts[1:], strict=True):
+                key = (min(v0, v1), max(v0, v1))
+                placed = False
+                for e_id in by_ends.get(key, ()):
+                    m = _match(edges[e_id], rows, i, name, s0, s1, v0, v1, eps)
+                    if m is not None:
+                        edges[e_id].members.append(m)
+                        wires[i][name].append((e_id, len(edges[e_id].members) - 1))
+                        placed = True
+                        break
+                if not placed:
+                    edges.append(TopoEdge(v0, v1, s0, s1, [Member(i, name, s0, s1)]))
+                    by_ends.setdefault(key, []).append(len(edges) - 1)
+                    wires[i][name].append((len(edges) - 1, 0))
+
+    # vertex tolerances cover the curve ends the vertices stand for
+    for e in edges:
+        if e.degenerate:
+            continue
+        o = e.owner
+        ends = _evaluate(rows[o.patch][o.side], np.array([e.t0, e.t1]))
+        vtol[e.va] = max(vtol[e.va], float(np.linalg.norm(ends[0] - V[e.va])))
+        vtol[e.vb] = max(vtol[e.vb], float(np.linalg.norm(ends[1] - V[e.vb])))
+    return Topology(V, vtol, edges, wires)
+
+
+def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: int, v1: int,
+           eps: float) -> Member | None:
+    """The member that segment (s0, s1) of side ``name`` of patch i makes of ``edge``, or None when
+    its curve is another one between the same two vertices."""
+    if edge.degenerate:
+        return None
+    o = edge.owner
+    orow, row = rows[o.patch][o.side], rows[i][name]
+    mid = _evaluate(row, np.array([0.5 * (s0 + s1)]))
+    _, d = project(orow, mid, edge.t0, edge.t1)
+    if d[0] > eps:
+        return None
+    # which end of the segment sits at the edge's start
+    if edge.va != edge.vb:
+        forward = v0 == edge.va
+    else:  # a closed edge: decide by a point a quarter along
+        q = _evaluate(orow, np.array([edge.t0 + 0.25 * (edge.t1 - edge.t0)]))
+        sq, _ = project(row, q, s0, s1)
+        forward = sq[0] < 0.5 * (s0 + s1)
+    a0, a1 = (s0, s1) if forward else (s1, s0)
+    target = _evaluate(orow, edge.t0 + _CHECK * (edge.t1 - edge.t0))
+    dev = float(np.linalg.norm(_evaluate(row, a0 + _CHECK * (a1 - a0)) - target, axis=1).max())
+    w = 1.0
+    if dev > 1e-3 * eps:
+        # a Moebius map through the projected midpoint
+        smid, _ = project(row, target[3:4], min(s0, s1), max(s0, s1))
+        if smid[0] != a0 and smid[0] != a1 and (smid[0] - a0) * (a1 - smid[0]) > 0:
+            wm = (smid[0] - a0) / (a1 - smid[0])
+            devm = float(np.linalg.norm(_evaluate(row, _moebius(_CHECK, a0, a1, wm)) - target, axis=1).max())
+            if devm < dev:
+                w, dev = float(wm), devm
+    return Member(i, name, a0, a1, w, dev)
