@@ -46,6 +46,7 @@ SIDE_ROWS = {
 SIDE_NAMES = tuple(SIDE_ROWS)
 _CORNERS = ((0, 0), (1, 0), (1, 1), (0, 1))
 _COLLAPSED_REL = 1e-12  # a side whose control points stay this close (x patch size) is one point
+_MERGE = 4.0  # a vertex this close to a side's end (x eps) is that end
 _CHECK = np.array([0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875])  # where parameter maps are measured
 
 
@@ -199,50 +200,32 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
             p = r[name][:, :3] / r[name][:, 3:4]
             collapsed[i, k] = bool(np.max(np.linalg.norm(p - p[0], axis=1)) <= _COLLAPSED_REL * scale)
 
-    # vertices: corners within eps are one (connected components of the eps-graph)
-    flat = corners.reshape(-1, 3)
-    pairs = cKDTree(flat).query_pairs(eps, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(flat), len(flat)))
-    nv, label = connected_components(graph, directed=False)
-    counts = np.bincount(label, minlength=nv)
-    V = np.zeros((nv, 3))
-    np.add.at(V, label, flat)
-    V /= counts[:, None]
-    vtol = np.zeros(nv)
-    np.maximum.at(vtol, label, np.linalg.norm(flat - V[label], axis=1))
-    cid = label.reshape(P, 4)
     side_corners = {"bottom": (0, 1), "right": (1, 2), "top": (3, 2), "left": (0, 3)}
-
-    # T-vertices: vertices on the inside of a side
-    tree = cKDTree(V)
-    live = [(i, k, name) for i in range(P) for k, name in enumerate(SIDE_NAMES) if not collapsed[i, k]]
-    xyz_rows = [rows[i][n][:, :3] / rows[i][n][:, 3:4] for i, _, n in live]
+    live = [(i, name) for i in range(P) for k, name in enumerate(SIDE_NAMES) if not collapsed[i, k]]
+    xyz_rows = [rows[i][n][:, :3] / rows[i][n][:, 3:4] for i, n in live]
     lo = np.array([r.min(axis=0) for r in xyz_rows]).reshape(-1, 3)
     hi = np.array([r.max(axis=0) for r in xyz_rows]).reshape(-1, 3)
-    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1) + eps
-    near = tree.query_ball_point(centre, radius) if live else []
-    cuts: dict[tuple[int, str], list[tuple[float, int]]] = {}
-    for (i, _, name), cand, a, b in zip(live, near, lo, hi, strict=True):
-        ca, cb = side_corners[name]
-        ends = {cid[i, ca], cid[i, cb]}
-        cand = [c for c in cand if c not in ends]
-        if cand:
-            cand = np.array(cand)
-            inside = np.all((V[cand] >= a - eps) & (V[cand] <= b + eps), axis=1)
-            cand = cand[inside]
-        pts = [(0.0, int(cid[i, ca])), (1.0, int(cid[i, cb]))]
-        if len(cand):
-            s, dist = project(rows[i][name], V[cand])
-            for sv, dv, c in zip(s, dist, cand, strict=True):
-                if dv <= eps and 0.0 < sv < 1.0:
-                    pts.append((float(sv), int(c)))
-                    vtol[c] = max(vtol[c], float(dv))
-        cuts[(i, name)] = sorted(pts)
+    flat_corners = corners.reshape(-1, 3)
+    pairs = cKDTree(flat_corners).query_pairs(eps, output_type="ndarray")
+    # a vertex on a side within _MERGE x eps of the side's end is that end, not a T-vertex (the
+    # piece between them would be shorter than anything stage 1 makes, and near a corner such a
+    # vertex can lie on both sides, so both tiny pieces would join into one edge used twice);
+    # merging can bring new vertices onto sides, so repeat until nothing merges
+    for _ in range(8):
+        V, vtol, label = _vertices(flat_corners, pairs)
+        cid = label.reshape(P, 4)
+        cuts, merges = _t_vertices(V, vtol, cid, rows, live, lo, hi, side_corners, eps)
+        if not merges:
+            break
+        # merge the corners the two vertices stand for
+        first = {int(v): n for n, v in enumerate(label)}
+        extra = np.array([(first[a], first[b]) for a, b in merges])
+        pairs = np.concatenate([pairs.reshape(-1, 2), extra])
 
-    # segments, matched into edges by their end vertices and a midpoint test
-    wires: list[dict[str, list[tuple[int, int]]]] = [dict() for _ in range(P)]
+    # segments, grouped by their two end vertices, then paired within each group
+    wires: list[dict[str, list]] = [dict() for _ in range(P)]
     edges: list[TopoEdge] = []
-    by_ends: dict[tuple[int, int], list[int]] = {}
+    groups: dict[tuple[int, int], list[tuple]] = {}
     for i in range(P):
         for k, name in enumerate(SIDE_NAMES):
             if collapsed[i, k]:
@@ -250,22 +233,23 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
                 edges.append(TopoEdge(v, v, 0.0, 1.0, [Member(i, name, 0.0, 1.0)], degenerate=True))
                 wires[i][name] = [(len(edges) - 1, 0)]
                 continue
-            wires[i][name] = []
             pts = cuts[(i, name)]
-            for (s0, v0), (s1, v1) in zip(pts[:-1], pts[1:], strict=True):
-                key = (min(v0, v1), max(v0, v1))
-                placed = False
-                for e_id in by_ends.get(key, ()):
-                    m = _match(edges[e_id], rows, i, name, s0, s1, v0, v1, eps)
-                    if m is not None:
-                        edges[e_id].members.append(m)
-                        wires[i][name].append((e_id, len(edges[e_id].members) - 1))
-                        placed = True
-                        break
-                if not placed:
-                    edges.append(TopoEdge(v0, v1, s0, s1, [Member(i, name, s0, s1)]))
-                    by_ends.setdefault(key, []).append(len(edges) - 1)
-                    wires[i][name].append((len(edges) - 1, 0))
+            wires[i][name] = [None] * (len(pts) - 1)
+            for n, ((s0, v0), (s1, v1)) in enumerate(zip(pts[:-1], pts[1:], strict=True)):
+                groups.setdefault((min(v0, v1), max(v0, v1)), []).append((i, name, n, s0, s1, v0, v1))
+    for segs in groups.values():
+        for pair in _pairs(segs, rows, eps):
+            own = segs[pair[0]]
+            i, name, n, s0, s1, v0, v1 = own
+            edge = TopoEdge(v0, v1, s0, s1, [Member(i, name, s0, s1)])
+            wires[i][name][n] = (len(edges), 0)
+            if len(pair) == 2:
+                j, jname, jn, *_ = segs[pair[1]]
+                edge.members.append(_match(edge, rows, *_seg_args(segs[pair[1]]), eps))
+                wires[j][jname][jn] = (len(edges), 1)
+            edges.append(edge)
+
+    V, vtol = _unpinch(edges, wires, V, vtol)
 
     # vertex tolerances cover the curve ends the vertices stand for
     for e in edges:
@@ -276,6 +260,168 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
         vtol[e.va] = max(vtol[e.va], float(np.linalg.norm(ends[0] - V[e.va])))
         vtol[e.vb] = max(vtol[e.vb], float(np.linalg.norm(ends[1] - V[e.vb])))
     return Topology(V, vtol, edges, wires)
+
+
+_TRAVERSAL = {"bottom": 1.0, "right": 1.0, "top": -1.0, "left": -1.0}  # wire direction along s
+
+
+def forward(m: Member) -> bool:
+    """Whether the member's face wire runs along its edge's parameter (the edge is FORWARD there):
+    the wire goes bottom, right (s increasing), top, left (s decreasing)."""
+    if m.s1 == m.s0:
+        return _TRAVERSAL[m.side] > 0
+    return (m.s1 - m.s0) * _TRAVERSAL[m.side] > 0
+
+
+def wire_order(wire: dict[str, list]) -> list[tuple[int, int]]:
+    """(edge, member) of a patch's wire in the order it runs."""
+    out = []
+    for side in ("bottom", "right", "top", "left"):
+        segs = wire[side]
+        out.extend(segs if _TRAVERSAL[side] > 0 else segs[::-1])
+    return out
+
+
+def _unpinch(edges: list[TopoEdge], wires: list[dict], V: np.ndarray, vtol: np.ndarray):
+    """One vertex per fan of faces. Near a cusp corner two sheets of patches can touch at one
+    vertex (a patch's top and left run within eps of each other for a while, and the T-vertex
+    where they part lies on both): the wire of that patch then passes the vertex twice, which is
+    no valid face. The face corners at each vertex are grouped into fans (corners that share an
+    edge there); every fan after the first gets its own vertex at the same point."""
+    parent: dict[tuple[int, int], tuple[int, int]] = {}
+
+    def find(x):
+        while parent.setdefault(x, x) != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for w in wires:
+        chain = wire_order(w)
+        for (e_in, k_in), (e_out, _) in zip(chain, chain[1:] + chain[:1], strict=True):
+            ei = edges[e_in]
+            v = ei.vb if forward(ei.members[k_in]) else ei.va
+            a, b = find((v, e_in)), find((v, e_out))
+            if a != b:
+                parent[a] = b
+    fans: dict[int, dict] = {}
+    for v, e in list(parent):
+        fans.setdefault(v, {}).setdefault(find((v, e)), []).append(e)
+    extra = []
+    for v, by_root in fans.items():
+        if len(by_root) < 2:
+            continue
+        for group in list(by_root.values())[1:]:
+            if any(edges[e].va == edges[e].vb and not edges[e].degenerate for e in group):
+                continue  # a closed edge at v: leave the pinch
+            clone = len(V) + len(extra)
+            extra.append(v)
+            for e in group:
+                edge = edges[e]
+                if edge.va == v:
+                    edge.va = clone
+                if edge.vb == v:
+                    edge.vb = clone
+    if extra:
+        V = np.concatenate([V, V[extra]])
+        vtol = np.concatenate([vtol, vtol[extra]])
+    return V, vtol
+
+
+def _vertices(flat: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices of the corner points joined by ``pairs`` (connected components): positions (the
+    mean), tolerances (largest distance to a member) and the label of every corner."""
+    n = len(flat)
+    pairs = pairs.reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    nv, label = connected_components(graph, directed=False)
+    counts = np.bincount(label, minlength=nv)
+    V = np.zeros((nv, 3))
+    np.add.at(V, label, flat)
+    V /= counts[:, None]
+    vtol = np.zeros(nv)
+    np.maximum.at(vtol, label, np.linalg.norm(flat - V[label], axis=1))
+    return V, vtol, label
+
+
+def _t_vertices(V, vtol, cid, rows, live, lo, hi, side_corners, eps):
+    """Per live side, its cut parameters with their vertices (ends included, sorted), and the
+    vertex pairs to merge (a vertex on a side within ``_MERGE`` x eps of one of its ends)."""
+    tree = cKDTree(V)
+    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1) + eps
+    near = tree.query_ball_point(centre, radius) if live else []
+    cuts: dict[tuple[int, str], list[tuple[float, int]]] = {}
+    merges: list[tuple[int, int]] = []
+    for (i, name), cand, a, b in zip(live, near, lo, hi, strict=True):
+        ca, cb = side_corners[name]
+        va, vb = int(cid[i, ca]), int(cid[i, cb])
+        pts = [(0.0, va), (1.0, vb)]
+        cand = [c for c in cand if c != va and c != vb]
+        if cand:
+            cand = np.array(cand)
+            cand = cand[np.all((V[cand] >= a - eps) & (V[cand] <= b + eps), axis=1)]
+        if len(cand):
+            s, dist = project(rows[i][name], V[cand])
+            for sv, dv, c in zip(s, dist, cand, strict=True):
+                if dv > eps:
+                    continue
+                end = min((va, vb), key=lambda v: np.linalg.norm(V[v] - V[c]))
+                if np.linalg.norm(V[end] - V[c]) <= _MERGE * eps or not 0.0 < sv < 1.0:
+                    merges.append((int(c), end))
+                    continue
+                pts.append((float(sv), int(c)))
+                vtol[c] = max(vtol[c], float(dv))
+        cuts[(i, name)] = sorted(pts)
+    return cuts, merges
+
+
+def _seg_args(seg: tuple) -> tuple:
+    i, name, _, s0, s1, v0, v1 = seg
+    return i, name, s0, s1, v0, v1
+
+
+def _pairs(segs: list[tuple], rows, eps: float) -> list[tuple[int, ...]]:
+    """Segments between the same two vertices paired into edges: two whose curves coincide (the
+    midpoint of the second on the first within eps). A manifold edge has two uses, so a group of
+    more is matched to the most pairs, of different patches first: near a cusp corner, a vertex
+    can lie on two sides of one patch, whose two pieces then run together with their neighbours'
+    (trj8: a patch's top and left pieces beside two other patches' pieces). Unpaired segments are
+    edges of their own (free). Returns index tuples into ``segs``."""
+    n = len(segs)
+    if n == 1:
+        return [(0,)]
+    ok = {}
+    for a in range(n):
+        for b in range(a + 1, n):
+            edge = TopoEdge(segs[a][5], segs[a][6], segs[a][3], segs[a][4],
+                            [Member(segs[a][0], segs[a][1], segs[a][3], segs[a][4])])
+            if _match(edge, rows, *_seg_args(segs[b]), eps) is not None:
+                ok[(a, b)] = 2 if segs[a][0] != segs[b][0] else 1  # a fold of one patch scores less
+    best: tuple[int, list] = (-1, [])
+
+    def search(free: list[int], chosen: list, score: int) -> None:
+        nonlocal best
+        if score > best[0]:
+            best = (score, list(chosen))
+        if not free or len(free) < 2:
+            return
+        a, rest = free[0], free[1:]
+        for b in rest:
+            if (a, b) in ok:
+                search([x for x in rest if x != b], chosen + [(a, b)], score + ok[(a, b)])
+        search(rest, chosen, score)
+
+    if n <= 8:
+        search(list(range(n)), [], 0)
+        paired = best[1]
+    else:  # greedy
+        paired, used = [], set()
+        for (a, b), _ in sorted(ok.items(), key=lambda kv: -kv[1]):
+            if a not in used and b not in used:
+                paired.append((a, b))
+                used.update((a, b))
+    used = {x for p in paired for x in p}
+    return paired + [(a,) for a in range(n) if a not in used]
 
 
 def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: int, v1: int,

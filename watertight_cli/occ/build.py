@@ -21,7 +21,7 @@ from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Edge, TopoDS_Face, TopoDS_Shell, TopoDS_Vertex, TopoDS_Wire
 
 from ..errors import KernelError
-from ..topology import side_row
+from ..topology import forward, side_row, wire_order
 from .extract import indexed
 
 #: tolerance given to the built faces' edges and vertices (model units): OCCT's confusion value
@@ -151,7 +151,6 @@ _SIDE_UV = {  # side -> (uv at side parameter 0, d uv / d s)
     "top": ((0.0, 1.0), (1.0, 0.0)),
     "left": ((0.0, 0.0), (0.0, 1.0)),
 }
-_TRAVERSAL = {"bottom": 1.0, "right": 1.0, "top": -1.0, "left": -1.0}  # wire direction along s
 
 
 def _side_uv(side: str, s: float) -> gp_Pnt2d:
@@ -230,10 +229,6 @@ def joined_faces(nets: list[tuple[np.ndarray, bool, bool]], topo, tick=None) -> 
             vertices[i] = vx
         return vertices[i]
 
-    # the orientation each member's edge has in its face's wire
-    def sense(m) -> bool:  # True: FORWARD
-        return ((m.s1 - m.s0) * _TRAVERSAL[m.side] > 0) if m.s1 != m.s0 else _TRAVERSAL[m.side] > 0
-
     built: list[TopoDS_Edge] = []
     for e, tol in zip(topo.edges, edge_tol, strict=True):
         edge = TopoDS_Edge()
@@ -250,7 +245,7 @@ def joined_faces(nets: list[tuple[np.ndarray, bool, bool]], topo, tick=None) -> 
             for m in e.members:
                 per_patch.setdefault(m.patch, []).append(m)
             for p, ms in per_patch.items():
-                curves = [(_pcurve(m.side, m.s0, m.s1, m.w), sense(m)) for m in ms]
+                curves = [(_pcurve(m.side, m.s0, m.s1, m.w), forward(m)) for m in ms]
                 if len(curves) == 1:
                     B.UpdateEdge(edge, curves[0][0], faces[p], tol)
                 else:  # a seam of one patch: the first pcurve is for the FORWARD use
@@ -267,11 +262,9 @@ def joined_faces(nets: list[tuple[np.ndarray, bool, bool]], topo, tick=None) -> 
     for i, (wire_map, (_, _, reversed_)) in enumerate(zip(topo.wires, nets, strict=True)):
         wire = TopoDS_Wire()
         B.MakeWire(wire)
-        for side in ("bottom", "right", "top", "left"):
-            segs = wire_map[side] if _TRAVERSAL[side] > 0 else wire_map[side][::-1]
-            for e_id, k in segs:
-                m = topo.edges[e_id].members[k]
-                B.Add(wire, built[e_id].Oriented(TopAbs_FORWARD if sense(m) else TopAbs_REVERSED))
+        for e_id, k in wire_order(wire_map):
+            m = topo.edges[e_id].members[k]
+            B.Add(wire, built[e_id].Oriented(TopAbs_FORWARD if forward(m) else TopAbs_REVERSED))
         wire.Closed(True)
         B.Add(faces[i], wire)
         B.NaturalRestriction(faces[i], True)
