@@ -122,3 +122,39 @@ def test_built_faces_are_valid_and_untrimmed(tmp_path, tol):
     assert len(m.faces) == 3
     assert not any(trimmed(f) for f in m.faces)
     assert sum(1 for e in m.edges if e.uses == 2) == 3
+
+
+def test_many_sides_between_two_vertices_pair_across_patches():
+    """Four sides along one curve between the same two vertices, two of them of one patch (a
+    cusp corner): paired into two edges of different patches, no edge of one patch twice."""
+    from watertight_cli.topology import _pairs
+
+    row = np.concatenate([np.array([[0, 0, 0], [1, 1, 0], [2, 0, 0]], float), np.ones((3, 1))], axis=1)
+    rows = {0: {"bottom": row}, 1: {"right": row}, 2: {"top": row, "left": row}}
+    segs = [(0, "bottom", 0, 0.0, 1.0, 5, 6), (1, "right", 0, 0.0, 1.0, 5, 6),
+            (2, "top", 0, 0.0, 1.0, 5, 6), (2, "left", 0, 0.0, 1.0, 5, 6)]
+    pairs = _pairs(segs, rows, EPS)
+    assert len(pairs) == 2 and all(len(p) == 2 and m is not None for p, m in pairs)
+    assert all(segs[p[0]][0] != segs[p[1]][0] for p, _ in pairs)
+
+
+def test_reparameterized_side_gets_a_spline_map():
+    """A side that runs along its neighbour's curve at a speed no Moebius map gives (the curve
+    composed with a quadratic change of parameter): its pcurve map is a cubic spline that keeps it
+    on the curve to a hundredth of eps."""
+    C = np.array([[0, 0, 0], [1, 2, 0], [2, -1, 1], [3, 0, 0]], float)
+    phi = lambda s: s + 0.1 * s * (1 - s)  # noqa: E731
+    # the reparameterized curve, fitted exactly: degree 6 through 7 points of C(phi(s))
+    from watertight_cli.core.approx import fit_points
+    from watertight_cli.core.bernstein import basis
+
+    s = np.linspace(0, 1, 40)
+    D = fit_points(s, basis(3, phi(s)) @ C, 6)
+    up = np.array([0.0, 0.0, 1.0])
+    a = np.stack([C, C + up], axis=1)  # bottom = C
+    b = np.stack([D + up, D], axis=1)  # top = D
+    topo = connect([(a, False), (b, False)], EPS)
+    e = next(e for e in topo.edges if (0, "bottom") in {(m.patch, m.side) for m in e.members})
+    m = e.members[1]
+    assert (m.patch, m.side) == (1, "top")
+    assert m.smap is not None and m.deviation <= 0.01 * EPS

@@ -33,7 +33,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .core.bernstein import basis
+from .core.bernstein import binom_table
 
 #: the four sides of a patch net as (row of the net, corner at s = 0, corner at s = 1); the side
 #: parameter runs along the net's axis 0 for bottom/top and axis 1 for left/right
@@ -47,6 +47,8 @@ SIDE_NAMES = tuple(SIDE_ROWS)
 _CORNERS = ((0, 0), (1, 0), (1, 1), (0, 1))
 _COLLAPSED_REL = 1e-12  # a side whose control points stay this close (x patch size) is one point
 _MERGE = 4.0  # a vertex this close to a side's end (x eps) is that end
+_MAP_DEGREE = 5  # degree of spline parameter maps
+_MAP_REL = 0.01  # a parameter map is refined while it leaves more than this x eps
 _CHECK = np.array([0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875])  # where parameter maps are measured
 
 
@@ -62,6 +64,7 @@ class Member:
     s1: float
     w: float = 1.0
     deviation: float = 0.0  # max distance between the owner's curve and this side at mapped parameters
+    smap: tuple | None = None  # when set: s(a) as a cubic B-spline (knots, coefficients) instead
 
 
 @dataclass
@@ -122,17 +125,28 @@ def side_row(ctrl: np.ndarray, rational: bool, side: str) -> np.ndarray:
     return row
 
 
+def _basis(n: int, s: np.ndarray) -> np.ndarray:
+    """Bernstein basis C(n, k) s^k (1 - s)^(n - k) at s in [0, 1], by powers: one vectorized
+    expression instead of ``basis``'s recurrence, which dominated the projections (low degrees,
+    few points, many calls); the terms are all positive, so there is no cancellation."""
+    if n < 0:
+        return np.zeros((len(s), 0))
+    k = np.arange(n + 1)
+    s = s[:, None]
+    return binom_table(n)[n] * s ** k * (1.0 - s) ** (n - k)
+
+
 def _evaluate(row: np.ndarray, s: np.ndarray) -> np.ndarray:
-    h = basis(len(row) - 1, np.clip(s, 0.0, 1.0)) @ row
+    h = _basis(len(row) - 1, np.clip(s, 0.0, 1.0)) @ row
     return h[:, :3] / h[:, 3:4]
 
 
 def _derivatives(row: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """C, C', C'' of a homogeneous row at s (quotient rule on the homogeneous derivatives)."""
     n = len(row) - 1
-    h = basis(n, s) @ row
-    d1 = basis(n - 1, s) @ (n * np.diff(row, axis=0)) if n >= 1 else np.zeros_like(h)
-    d2 = basis(n - 2, s) @ (n * (n - 1) * np.diff(row, 2, axis=0)) if n >= 2 else np.zeros_like(h)
+    h = _basis(n, s) @ row
+    d1 = _basis(n - 1, s) @ (n * np.diff(row, axis=0)) if n >= 1 else np.zeros_like(h)
+    d2 = _basis(n - 2, s) @ (n * (n - 1) * np.diff(row, 2, axis=0)) if n >= 2 else np.zeros_like(h)
     w, w1, w2 = h[:, 3:4], d1[:, 3:4], d2[:, 3:4]
     c = h[:, :3] / w
     c1 = (d1[:, :3] - c * w1) / w
@@ -140,16 +154,30 @@ def _derivatives(row: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return c, c1, c2
 
 
-def project(row: np.ndarray, pts: np.ndarray, lo: float = 0.0,
-            hi: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def project(row: np.ndarray, pts: np.ndarray, lo: float = 0.0, hi: float = 1.0,
+            within: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Closest parameters in [lo, hi] of the side curve ``row`` to the points (k, 3), and the
-    distances: nearest of a dense sampling, then Newton on C'(s).(C(s) - p) = 0."""
+    distances: nearest of a dense sampling, then Newton on C'(s).(C(s) - p) = 0. With ``within``,
+    points farther than that from the curve may come back unrefined (distance from the sampling,
+    which is then larger than ``within`` too)."""
     pts = np.atleast_2d(pts)
     n = len(row) - 1
     grid = np.linspace(lo, hi, max(33, 4 * n + 1))
     samples = _evaluate(row, grid)
     d = np.linalg.norm(samples[None, :, :] - pts[:, None, :], axis=2)
-    s = grid[np.argmin(d, axis=1)]
+    nearest = np.argmin(d, axis=1)
+    s = grid[nearest]
+    if within is not None:
+        # a point within ``within`` of the curve is within that plus half the largest sample
+        # spacing of a sample
+        gap = float(np.linalg.norm(np.diff(samples, axis=0), axis=1).max()) if len(samples) > 1 else 0.0
+        dmin = d[np.arange(len(pts)), nearest]
+        far = dmin > within + gap
+        if far.any():
+            out_s, out_d = s.copy(), dmin.copy()
+            if (~far).any():
+                out_s[~far], out_d[~far] = project(row, pts[~far], lo, hi)
+            return out_s, out_d
     for _ in range(12):
         c, c1, c2 = _derivatives(row, s)
         r = c - pts
@@ -157,7 +185,7 @@ def project(row: np.ndarray, pts: np.ndarray, lo: float = 0.0,
         df = np.einsum("ij,ij->i", c2, r) + np.einsum("ij,ij->i", c1, c1)
         step = np.where(df > 0, f / np.where(df > 0, df, 1.0), 0.0)
         s_new = np.clip(s - step, lo, hi)
-        if np.all(np.abs(s_new - s) <= 1e-15):
+        if np.all(np.abs(s_new - s) <= 1e-14):
             s = s_new
             break
         s = s_new
@@ -211,10 +239,29 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
     # piece between them would be shorter than anything stage 1 makes, and near a corner such a
     # vertex can lie on both sides, so both tiny pieces would join into one edge used twice);
     # merging can bring new vertices onto sides, so repeat until nothing merges
+    # Sides are first paired whole (most are: stage 2 copies shared sides); only the sides left
+    # open can hold T-vertices, and only the ends of open sides can be T-vertices (a short side
+    # that ends at a T-vertex has no whole partner), so the search runs on those alone.
+    where = {side: n for n, side in enumerate(live)}
     for _ in range(8):
         V, vtol, label = _vertices(flat_corners, pairs)
         cid = label.reshape(P, 4)
-        cuts, merges = _t_vertices(V, vtol, cid, rows, live, lo, hi, side_corners, eps)
+        ends = {(i, name): (int(cid[i, side_corners[name][0]]), int(cid[i, side_corners[name][1]]))
+                for i, name in live}
+        whole: dict[tuple[int, int], list[tuple]] = {}
+        for i, name in live:
+            va, vb = ends[(i, name)]
+            whole.setdefault((min(va, vb), max(va, vb)), []).append((i, name, 0, 0.0, 1.0, va, vb))
+        paired_whole, open_sides = [], []
+        for segs in whole.values():
+            for pair, member in _pairs(segs, rows, eps):
+                if member is None:
+                    open_sides.append(segs[pair[0]][:2])
+                else:
+                    paired_whole.append((segs[pair[0]], segs[pair[1]], member))
+        rows_idx = [where[side] for side in open_sides]
+        cand = np.array(sorted({v for side in open_sides for v in ends[side]}), dtype=int)
+        cuts, merges = _t_vertices(V, vtol, cand, ends, rows, open_sides, lo[rows_idx], hi[rows_idx], eps)
         if not merges:
             break
         # merge the corners the two vertices stand for
@@ -222,30 +269,34 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
         extra = np.array([(first[a], first[b]) for a, b in merges])
         pairs = np.concatenate([pairs.reshape(-1, 2), extra])
 
-    # segments, grouped by their two end vertices, then paired within each group
     wires: list[dict[str, list]] = [dict() for _ in range(P)]
     edges: list[TopoEdge] = []
-    groups: dict[tuple[int, int], list[tuple]] = {}
     for i in range(P):
         for k, name in enumerate(SIDE_NAMES):
             if collapsed[i, k]:
                 v = int(cid[i, side_corners[name][0]])
                 edges.append(TopoEdge(v, v, 0.0, 1.0, [Member(i, name, 0.0, 1.0)], degenerate=True))
                 wires[i][name] = [(len(edges) - 1, 0)]
-                continue
-            pts = cuts[(i, name)]
-            wires[i][name] = [None] * (len(pts) - 1)
-            for n, ((s0, v0), (s1, v1)) in enumerate(zip(pts[:-1], pts[1:], strict=True)):
-                groups.setdefault((min(v0, v1), max(v0, v1)), []).append((i, name, n, s0, s1, v0, v1))
+    for own, other, member in paired_whole:
+        i, name, _, s0, s1, v0, v1 = own
+        edges.append(TopoEdge(v0, v1, s0, s1, [Member(i, name, s0, s1), member]))
+        wires[i][name] = [(len(edges) - 1, 0)]
+        wires[other[0]][other[1]] = [(len(edges) - 1, 1)]
+    # the open sides cut at their T-vertices, grouped by their two end vertices, paired again
+    groups: dict[tuple[int, int], list[tuple]] = {}
+    for i, name in open_sides:
+        pts = cuts[(i, name)]
+        wires[i][name] = [None] * (len(pts) - 1)
+        for n, ((s0, v0), (s1, v1)) in enumerate(zip(pts[:-1], pts[1:], strict=True)):
+            groups.setdefault((min(v0, v1), max(v0, v1)), []).append((i, name, n, s0, s1, v0, v1))
     for segs in groups.values():
-        for pair in _pairs(segs, rows, eps):
-            own = segs[pair[0]]
-            i, name, n, s0, s1, v0, v1 = own
+        for pair, member in _pairs(segs, rows, eps):
+            i, name, n, s0, s1, v0, v1 = segs[pair[0]]
             edge = TopoEdge(v0, v1, s0, s1, [Member(i, name, s0, s1)])
             wires[i][name][n] = (len(edges), 0)
-            if len(pair) == 2:
+            if member is not None:
                 j, jname, jn, *_ = segs[pair[1]]
-                edge.members.append(_match(edge, rows, *_seg_args(segs[pair[1]]), eps))
+                edge.members.append(member)
                 wires[j][jname][jn] = (len(edges), 1)
             edges.append(edge)
 
@@ -344,24 +395,26 @@ def _vertices(flat: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return V, vtol, label
 
 
-def _t_vertices(V, vtol, cid, rows, live, lo, hi, side_corners, eps):
-    """Per live side, its cut parameters with their vertices (ends included, sorted), and the
-    vertex pairs to merge (a vertex on a side within ``_MERGE`` x eps of one of its ends)."""
-    tree = cKDTree(V)
-    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1) + eps
-    near = tree.query_ball_point(centre, radius) if live else []
+def _t_vertices(V, vtol, cand_ids, ends, rows, sides, lo, hi, eps):
+    """Per side, its cut parameters with their vertices (ends included, sorted), and the vertex
+    pairs to merge (a vertex on a side within ``_MERGE`` x eps of one of its ends). Only the
+    vertices ``cand_ids`` are tried."""
     cuts: dict[tuple[int, str], list[tuple[float, int]]] = {}
     merges: list[tuple[int, int]] = []
-    for (i, name), cand, a, b in zip(live, near, lo, hi, strict=True):
-        ca, cb = side_corners[name]
-        va, vb = int(cid[i, ca]), int(cid[i, cb])
+    if not sides:
+        return cuts, merges
+    tree = cKDTree(V[cand_ids]) if len(cand_ids) else None
+    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1) + eps
+    near = tree.query_ball_point(centre, radius) if tree is not None else [[] for _ in sides]
+    for (i, name), found, a, b in zip(sides, near, lo, hi, strict=True):
+        va, vb = ends[(i, name)]
         pts = [(0.0, va), (1.0, vb)]
-        cand = [c for c in cand if c != va and c != vb]
-        if cand:
-            cand = np.array(cand)
+        cand = cand_ids[found] if len(found) else np.zeros(0, dtype=int)
+        cand = cand[(cand != va) & (cand != vb)]
+        if len(cand):
             cand = cand[np.all((V[cand] >= a - eps) & (V[cand] <= b + eps), axis=1)]
         if len(cand):
-            s, dist = project(rows[i][name], V[cand])
+            s, dist = project(rows[i][name], V[cand], within=eps)
             for sv, dv, c in zip(s, dist, cand, strict=True):
                 if dv > eps:
                     continue
@@ -380,23 +433,25 @@ def _seg_args(seg: tuple) -> tuple:
     return i, name, s0, s1, v0, v1
 
 
-def _pairs(segs: list[tuple], rows, eps: float) -> list[tuple[int, ...]]:
+def _pairs(segs: list[tuple], rows, eps: float) -> list[tuple[tuple[int, ...], Member | None]]:
     """Segments between the same two vertices paired into edges: two whose curves coincide (the
     midpoint of the second on the first within eps). A manifold edge has two uses, so a group of
     more is matched to the most pairs, of different patches first: near a cusp corner, a vertex
     can lie on two sides of one patch, whose two pieces then run together with their neighbours'
     (trj8: a patch's top and left pieces beside two other patches' pieces). Unpaired segments are
-    edges of their own (free). Returns index tuples into ``segs``."""
+    edges of their own (free). Returns index tuples into ``segs`` with the second's member."""
     n = len(segs)
     if n == 1:
-        return [(0,)]
-    ok = {}
+        return [((0,), None)]
+    ok, members = {}, {}
     for a in range(n):
         for b in range(a + 1, n):
             edge = TopoEdge(segs[a][5], segs[a][6], segs[a][3], segs[a][4],
                             [Member(segs[a][0], segs[a][1], segs[a][3], segs[a][4])])
-            if _match(edge, rows, *_seg_args(segs[b]), eps) is not None:
+            m = _match(edge, rows, *_seg_args(segs[b]), eps)
+            if m is not None:
                 ok[(a, b)] = 2 if segs[a][0] != segs[b][0] else 1  # a fold of one patch scores less
+                members[(a, b)] = m
     best: tuple[int, list] = (-1, [])
 
     def search(free: list[int], chosen: list, score: int) -> None:
@@ -421,7 +476,38 @@ def _pairs(segs: list[tuple], rows, eps: float) -> list[tuple[int, ...]]:
                 paired.append((a, b))
                 used.update((a, b))
     used = {x for p in paired for x in p}
-    return paired + [(a,) for a in range(n) if a not in used]
+    return [(p, members[p]) for p in paired] + [((a,), None) for a in range(n) if a not in used]
+
+
+def _spline_map(orow, row, t0, t1, a0, a1, goal):
+    """s(a), a in [0, 1], as a clamped cubic B-spline (knots, coefficients) that puts the side
+    ``row`` on the owner's curve at t0 + a (t1 - t0), with s(0) = a0 and s(1) = a1 exactly:
+    fitted to projected parameters, spans doubled until the deviation is within ``goal`` (at most
+    64 spans). Returns the map and its deviation (65 samples per span)."""
+    from scipy.interpolate import make_lsq_spline
+
+    lo, hi = min(a0, a1), max(a0, a1)
+    best, best_dev = None, np.inf
+    spans = 1
+    while spans <= 64:
+        aa = np.linspace(0.0, 1.0, 8 * spans + 1)
+        ss, _ = project(row, _evaluate(orow, t0 + aa * (t1 - t0)), lo, hi)
+        ss[0], ss[-1] = a0, a1
+        knots = np.concatenate([[0.0] * _MAP_DEGREE, np.linspace(0.0, 1.0, spans + 1), [1.0] * _MAP_DEGREE])
+        spline = make_lsq_spline(aa, ss, knots, k=_MAP_DEGREE)
+        coef = spline.c.copy()
+        coef[0], coef[-1] = a0, a1
+        dense = np.linspace(0.0, 1.0, 64 * spans + 1)
+        spline.c = coef
+        sm = np.clip(spline(dense), lo, hi)
+        target = _evaluate(orow, t0 + dense * (t1 - t0))
+        dev = float(np.linalg.norm(_evaluate(row, sm) - target, axis=1).max())
+        if dev < best_dev:
+            best, best_dev = (knots, coef), dev
+        if dev <= goal:
+            break
+        spans *= 2
+    return best, best_dev
 
 
 def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: int, v1: int,
@@ -432,9 +518,22 @@ def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: in
         return None
     o = edge.owner
     orow, row = rows[o.patch][o.side], rows[i][name]
-    mid = _evaluate(row, np.array([0.5 * (s0 + s1)]))
-    _, d = project(orow, mid, edge.t0, edge.t1)
-    if d[0] > eps:
+    if (s0, s1, edge.t0, edge.t1) == (0.0, 1.0, 0.0, 1.0) and row.shape == orow.shape:
+        # the same side copied (stage 2 computes a shared side once), its homogeneous points
+        # perhaps scaled by one factor: the same curve at the same parameter, no projection
+        for cand, a0, a1, v in ((row, 0.0, 1.0, v0), (row[::-1], 1.0, 0.0, v1)):
+            if v != edge.va:
+                continue
+            ratio = cand[:, 3] / orow[:, 3]
+            if np.ptp(ratio) <= 1e-12 * ratio[0]:
+                gap = float(np.linalg.norm(cand[:, :3] / cand[:, 3:] - orow[:, :3] / orow[:, 3:],
+                                           axis=1).max())
+                if gap <= 1e-3 * eps:
+                    return Member(i, name, a0, a1, 1.0, gap)
+    # the curves coincide: three points of the segment on the edge's curve within eps
+    pts = _evaluate(row, s0 + np.array([0.25, 0.5, 0.75]) * (s1 - s0))
+    _, d = project(orow, pts, edge.t0, edge.t1, within=eps)
+    if d.max() > eps:
         return None
     # which end of the segment sits at the edge's start
     if edge.va != edge.vb:
@@ -455,4 +554,10 @@ def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: in
             devm = float(np.linalg.norm(_evaluate(row, _moebius(_CHECK, a0, a1, wm)) - target, axis=1).max())
             if devm < dev:
                 w, dev = float(wm), devm
+    if dev > _MAP_REL * eps:
+        # the sides run along one curve at speeds no Moebius map relates (a polynomial side
+        # against a rational one): s(a) as a cubic spline through projected parameters
+        smap, devp = _spline_map(orow, row, edge.t0, edge.t1, a0, a1, _MAP_REL * eps)
+        if devp < dev:
+            return Member(i, name, a0, a1, 1.0, devp, smap)
     return Member(i, name, a0, a1, w, dev)

@@ -158,13 +158,28 @@ def _side_uv(side: str, s: float) -> gp_Pnt2d:
     return gp_Pnt2d(u0 + s * du, v0 + s * dv)
 
 
-def _pcurve(side: str, s0: float, s1: float, w: float):
+def _pcurve(side: str, s0: float, s1: float, w: float, smap: np.ndarray | None = None):
     """The straight pcurve of a side piece: edge parameter a in [0, 1] to the side's s from s0 to
-    s1 (affine, or the rational linear map with end weights 1 and w)."""
+    s1 (affine, or the rational linear map with end weights 1 and w, or the cubic spline ``smap``,
+    (knots, coefficients)); its poles all lie on the side."""
     from OCP.Geom2d import Geom2d_BSplineCurve
     from OCP.TColgp import TColgp_Array1OfPnt2d
-    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal
+    from OCP.TColStd import TColStd_Array1OfInteger
 
+    if smap is not None:
+        knots_full, coef = smap
+        poles = TColgp_Array1OfPnt2d(1, len(coef))
+        for k, c in enumerate(coef):
+            poles.SetValue(k + 1, _side_uv(side, float(c)))
+        inner = np.unique(knots_full)
+        knots = TColStd_Array1OfReal(1, len(inner))
+        mults = TColStd_Array1OfInteger(1, len(inner))
+        for k, x in enumerate(inner):
+            knots.SetValue(k + 1, float(x))
+        degree = len(knots_full) - len(coef) - 1
+        for k in range(len(inner)):
+            mults.SetValue(k + 1, degree + 1 if k in (0, len(inner) - 1) else 1)
+        return Geom2d_BSplineCurve(poles, knots, mults, degree)
     poles = TColgp_Array1OfPnt2d(1, 2)
     poles.SetValue(1, _side_uv(side, s0))
     poles.SetValue(2, _side_uv(side, s1))
@@ -245,7 +260,7 @@ def joined_faces(nets: list[tuple[np.ndarray, bool, bool]], topo, tick=None) -> 
             for m in e.members:
                 per_patch.setdefault(m.patch, []).append(m)
             for p, ms in per_patch.items():
-                curves = [(_pcurve(m.side, m.s0, m.s1, m.w), forward(m)) for m in ms]
+                curves = [(_pcurve(m.side, m.s0, m.s1, m.w, m.smap), forward(m)) for m in ms]
                 if len(curves) == 1:
                     B.UpdateEdge(edge, curves[0][0], faces[p], tol)
                 else:  # a seam of one patch: the first pcurve is for the FORWARD use
