@@ -210,7 +210,43 @@ def flat(ctrl: np.ndarray, rational: bool, eps: float) -> bool:
 
 def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
     """The topology of patches (``(ctrl, rational)`` each) whose shared boundaries coincide within
-    ``eps`` (model units). See the module docstring."""
+    ``eps`` (model units). See the module docstring.
+
+    A patch whose wire still passes one vertex twice (a cusp corner: the vertex lies on both sides
+    that meet there, and the faces around it form one fan, so ``_unpinch`` cannot split it) is no
+    valid face: the vertex then stays off one of the two sides (its later side in the wire), which
+    leaves that piece unpaired (free) instead, and the topology is worked out again."""
+    drop: set[tuple[int, str, int]] = set()
+    for _ in range(4):
+        topo = _connect(nets, eps, drop)
+        more = _pinches(topo) - drop
+        if not more:
+            break
+        drop |= more
+    return topo
+
+
+def _pinches(topo: Topology) -> set[tuple[int, str, int]]:
+    """(patch, side, vertex): T-cuts to leave out so that no wire passes a vertex twice."""
+    out = set()
+    for p, wire in enumerate(topo.wires):
+        seen: dict[int, str] = {}
+        for side in ("bottom", "right", "top", "left"):
+            segs = wire[side] if _TRAVERSAL[side] > 0 else wire[side][::-1]
+            for n, (e_id, k) in enumerate(segs):
+                e = topo.edges[e_id]
+                if e.degenerate:
+                    continue
+                v = e.va if forward(e.members[k]) else e.vb
+                if v in seen and n > 0:  # a cut inside this side at a vertex the wire has passed
+                    out.add((p, side, v))
+                elif v in seen and n == 0 and seen[v] != side:
+                    out.add((p, seen[v], v))
+                seen[v] = side
+    return out
+
+
+def _connect(nets: list[tuple[np.ndarray, bool]], eps: float, drop: set) -> Topology:
     P = len(nets)
     if P == 0:
         return Topology(np.zeros((0, 3)), np.zeros(0), [], [])
@@ -261,7 +297,8 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
                     paired_whole.append((segs[pair[0]], segs[pair[1]], member))
         rows_idx = [where[side] for side in open_sides]
         cand = np.array(sorted({v for side in open_sides for v in ends[side]}), dtype=int)
-        cuts, merges = _t_vertices(V, vtol, cand, ends, rows, open_sides, lo[rows_idx], hi[rows_idx], eps)
+        cuts, merges = _t_vertices(V, vtol, cand, ends, rows, open_sides, lo[rows_idx], hi[rows_idx], eps,
+                                   drop)
         if not merges:
             break
         # merge the corners the two vertices stand for
@@ -395,7 +432,7 @@ def _vertices(flat: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return V, vtol, label
 
 
-def _t_vertices(V, vtol, cand_ids, ends, rows, sides, lo, hi, eps):
+def _t_vertices(V, vtol, cand_ids, ends, rows, sides, lo, hi, eps, drop=frozenset()):
     """Per side, its cut parameters with their vertices (ends included, sorted), and the vertex
     pairs to merge (a vertex on a side within ``_MERGE`` x eps of one of its ends). Only the
     vertices ``cand_ids`` are tried."""
@@ -416,7 +453,7 @@ def _t_vertices(V, vtol, cand_ids, ends, rows, sides, lo, hi, eps):
         if len(cand):
             s, dist = project(rows[i][name], V[cand], within=eps)
             for sv, dv, c in zip(s, dist, cand, strict=True):
-                if dv > eps:
+                if dv > eps or (i, name, int(c)) in drop:
                     continue
                 end = min((va, vb), key=lambda v: np.linalg.norm(V[v] - V[c]))
                 if np.linalg.norm(V[end] - V[c]) <= _MERGE * eps or not 0.0 < sv < 1.0:
