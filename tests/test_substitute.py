@@ -123,6 +123,8 @@ def test_fixture_converts_with_invariants(tmp_path, name):
     assert rep["after"]["solids"] == rep["before"]["solids"]
     if rep["before"]["free_edges"] == 0:
         assert rep["after"]["free_edges"] == 0
+    # every shared edge's faces follow its curve at the mapped parameter to rounding (I2's line)
+    assert rep["after"]["edge_deviation_max"] <= Tolerances().watertight_rel * rep["diagonal"]
     for f in rep["faces"]:  # the measured deviation never exceeds the certified bound it replaces
         assert f["deviation_after"] <= f["bound_after"]
         assert f["deviation_after"] <= f["bound_allowed"]

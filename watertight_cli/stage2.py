@@ -104,6 +104,11 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "shells": joined["shells"],
             "solids": joined["solids"],
             "free_edges_after_join": joined["free_edges"],
+            # the built topology: T-vertices on longer sides, zero-area patches left out, and the
+            # largest distance between an edge's curve and a face side at the mapped parameter
+            "t_vertices": joined["t_vertices"],
+            "flat_patches_dropped": joined["flat_patches"],
+            "edge_deviation_max": joined["edge_deviation_max"],
             "valid": valid,
             "volume": vol_out,
             "volume_change_rel": (abs(vol_out - vol_in) / abs(vol_in)
