@@ -158,3 +158,23 @@ def test_reparameterized_side_gets_a_spline_map():
     m = e.members[1]
     assert (m.patch, m.side) == (1, "top")
     assert m.smap is not None and m.deviation <= 0.01 * EPS
+
+
+def test_a_wire_through_one_vertex_twice_drops_the_later_cut():
+    """A patch whose right and top sides are both cut at vertex 5 (a cusp corner at vertex 2):
+    its wire passes vertex 5 twice, and the cut on the later side (top) is the one to leave out."""
+    from watertight_cli.topology import Member, TopoEdge, Topology, _pinches
+
+    edges = [TopoEdge(0, 1, 0.0, 1.0, [Member(0, "bottom", 0.0, 1.0)]),
+             TopoEdge(1, 5, 0.0, 0.5, [Member(0, "right", 0.0, 0.5)]),
+             TopoEdge(5, 2, 0.5, 1.0, [Member(0, "right", 0.5, 1.0)]),
+             TopoEdge(3, 5, 0.0, 0.5, [Member(0, "top", 0.0, 0.5)]),
+             TopoEdge(5, 2, 0.5, 1.0, [Member(0, "top", 0.5, 1.0)]),
+             TopoEdge(0, 3, 0.0, 1.0, [Member(0, "left", 0.0, 1.0)])]
+    wires = [{"bottom": [(0, 0)], "right": [(1, 0), (2, 0)], "top": [(3, 0), (4, 0)], "left": [(5, 0)]}]
+    topo = Topology(np.zeros((6, 3)), np.zeros(6), edges, wires)
+    assert _pinches(topo) == {(0, "top", 5)}
+    # without the second cut the wire passes every vertex once
+    edges[3:5] = [TopoEdge(3, 2, 0.0, 1.0, [Member(0, "top", 0.0, 1.0)])]
+    wires = [{"bottom": [(0, 0)], "right": [(1, 0), (2, 0)], "top": [(3, 0)], "left": [(4, 0)]}]
+    assert _pinches(Topology(np.zeros((6, 3)), np.zeros(6), edges, wires)) == set()
