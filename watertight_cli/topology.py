@@ -217,8 +217,9 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
     valid face: the vertex then stays off one of the two sides (its later side in the wire), which
     leaves that piece unpaired (free) instead, and the topology is worked out again."""
     drop: set[tuple[int, str, int]] = set()
+    state: dict = {}
     for _ in range(4):
-        topo = _connect(nets, eps, drop)
+        topo = _connect(nets, eps, drop, state)
         more = _pinches(topo) - drop
         if not more:
             break
@@ -246,10 +247,14 @@ def _pinches(topo: Topology) -> set[tuple[int, str, int]]:
     return out
 
 
-def _connect(nets: list[tuple[np.ndarray, bool]], eps: float, drop: set) -> Topology:
+def _connect(nets: list[tuple[np.ndarray, bool]], eps: float, drop: set, state: dict) -> Topology:
+    """One pass of ``connect``. ``state`` keeps what does not depend on ``drop`` (vertices, the
+    whole-side pairs, the open sides) from the first pass for the next ones."""
     P = len(nets)
     if P == 0:
         return Topology(np.zeros((0, 3)), np.zeros(0), [], [])
+    if state:
+        return _assemble(P, eps, drop, **state)
     corners = np.empty((P, 4, 3))
     collapsed = np.zeros((P, 4), dtype=bool)
     rows: list[dict[str, np.ndarray]] = []
@@ -297,15 +302,28 @@ def _connect(nets: list[tuple[np.ndarray, bool]], eps: float, drop: set) -> Topo
                     paired_whole.append((segs[pair[0]], segs[pair[1]], member))
         rows_idx = [where[side] for side in open_sides]
         cand = np.array(sorted({v for side in open_sides for v in ends[side]}), dtype=int)
-        cuts, merges = _t_vertices(V, vtol, cand, ends, rows, open_sides, lo[rows_idx], hi[rows_idx], eps,
-                                   drop)
+        vt = vtol.copy()
+        cuts, merges = _t_vertices(V, vt, cand, ends, rows, open_sides, lo[rows_idx], hi[rows_idx], eps, drop)
         if not merges:
             break
         # merge the corners the two vertices stand for
         first = {int(v): n for n, v in enumerate(label)}
         extra = np.array([(first[a], first[b]) for a, b in merges])
         pairs = np.concatenate([pairs.reshape(-1, 2), extra])
+    state.update(V=V, vtol=vtol, cid=cid, ends=ends, rows=rows, collapsed=collapsed,
+                 side_corners=side_corners, paired_whole=paired_whole, open_sides=open_sides, cand=cand,
+                 lo=lo[rows_idx], hi=hi[rows_idx], pair_cache={})
+    return _assemble(P, eps, drop, **{**state, "vtol": vt}, cuts=cuts)
 
+
+def _assemble(P, eps, drop, V, vtol, cid, ends, rows, collapsed, side_corners, paired_whole, open_sides,
+              cand, lo, hi, pair_cache, cuts=None) -> Topology:
+    """Edges and wires from the whole-side pairs and the open sides cut at their T-vertices
+    (``cuts``, or worked out here with ``drop`` left out). Pairings of groups of pieces are kept
+    in ``pair_cache``: a later pass changes only the groups beside the cuts it leaves out."""
+    if cuts is None:
+        vtol = vtol.copy()
+        cuts, _ = _t_vertices(V, vtol, cand, ends, rows, open_sides, lo, hi, eps, drop)
     wires: list[dict[str, list]] = [dict() for _ in range(P)]
     edges: list[TopoEdge] = []
     for i in range(P):
@@ -327,7 +345,10 @@ def _connect(nets: list[tuple[np.ndarray, bool]], eps: float, drop: set) -> Topo
         for n, ((s0, v0), (s1, v1)) in enumerate(zip(pts[:-1], pts[1:], strict=True)):
             groups.setdefault((min(v0, v1), max(v0, v1)), []).append((i, name, n, s0, s1, v0, v1))
     for segs in groups.values():
-        for pair, member in _pairs(segs, rows, eps):
+        key = tuple(segs)
+        if key not in pair_cache:
+            pair_cache[key] = _pairs(segs, rows, eps)
+        for pair, member in pair_cache[key]:
             i, name, n, s0, s1, v0, v1 = segs[pair[0]]
             edge = TopoEdge(v0, v1, s0, s1, [Member(i, name, s0, s1)])
             wires[i][name][n] = (len(edges), 0)
