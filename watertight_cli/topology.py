@@ -588,6 +588,14 @@ def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: in
                                            axis=1).max())
                 if gap <= 1e-3 * eps:
                     return Member(i, name, a0, a1, 1.0, gap)
+    if edge.va != edge.vb:
+        # a piece of a side cut at a T-vertex against the whole side beside it: Bezier subdivision
+        # keeps the parameter affine, so most pieces coincide at affinely mapped parameters
+        a0, a1 = (s0, s1) if v0 == edge.va else (s1, s0)
+        target = _evaluate(orow, edge.t0 + _CHECK * (edge.t1 - edge.t0))
+        dev = float(np.linalg.norm(_evaluate(row, a0 + _CHECK * (a1 - a0)) - target, axis=1).max())
+        if dev <= 1e-3 * eps:
+            return Member(i, name, a0, a1, 1.0, dev)
     # the curves coincide: three points of the segment on the edge's curve within eps
     pts = _evaluate(row, s0 + np.array([0.25, 0.5, 0.75]) * (s1 - s0))
     _, d = project(orow, pts, edge.t0, edge.t1, within=eps)
