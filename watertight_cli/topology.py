@@ -64,7 +64,7 @@ class Member:
     s1: float
     w: float = 1.0
     deviation: float = 0.0  # max distance between the owner's curve and this side at mapped parameters
-    smap: tuple | None = None  # when set: s(a) as a cubic B-spline (knots, coefficients) instead
+    smap: tuple | None = None  # when set: s(a) as a B-spline (knots, coefficients) instead
 
 
 @dataclass
@@ -232,18 +232,16 @@ def _pinches(topo: Topology) -> set[tuple[int, str, int]]:
     out = set()
     for p, wire in enumerate(topo.wires):
         seen: dict[int, str] = {}
-        for side in ("bottom", "right", "top", "left"):
-            segs = wire[side] if _TRAVERSAL[side] > 0 else wire[side][::-1]
-            for n, (e_id, k) in enumerate(segs):
-                e = topo.edges[e_id]
-                if e.degenerate:
-                    continue
-                v = e.va if forward(e.members[k]) else e.vb
-                if v in seen and n > 0:  # a cut inside this side at a vertex the wire has passed
-                    out.add((p, side, v))
-                elif v in seen and n == 0 and seen[v] != side:
-                    out.add((p, seen[v], v))
-                seen[v] = side
+        for side, n, e_id, k in _walk(wire):
+            e = topo.edges[e_id]
+            if e.degenerate:
+                continue
+            v = e.va if forward(e.members[k]) else e.vb
+            if v in seen and n > 0:  # a cut inside this side at a vertex the wire has passed
+                out.add((p, side, v))
+            elif v in seen and n == 0 and seen[v] != side:
+                out.add((p, seen[v], v))
+            seen[v] = side
     return out
 
 
@@ -382,13 +380,18 @@ def forward(m: Member) -> bool:
     return (m.s1 - m.s0) * _TRAVERSAL[m.side] > 0
 
 
-def wire_order(wire: dict[str, list]) -> list[tuple[int, int]]:
-    """(edge, member) of a patch's wire in the order it runs."""
-    out = []
+def _walk(wire: dict[str, list]):
+    """(side, index along the side, edge, member) of a patch's wire in the order it runs."""
     for side in ("bottom", "right", "top", "left"):
         segs = wire[side]
-        out.extend(segs if _TRAVERSAL[side] > 0 else segs[::-1])
-    return out
+        order = range(len(segs)) if _TRAVERSAL[side] > 0 else range(len(segs) - 1, -1, -1)
+        for n, i in enumerate(order):
+            yield side, n, *segs[i]
+
+
+def wire_order(wire: dict[str, list]) -> list[tuple[int, int]]:
+    """(edge, member) of a patch's wire in the order it runs."""
+    return [(e_id, k) for _, _, e_id, k in _walk(wire)]
 
 
 def _unpinch(edges: list[TopoEdge], wires: list[dict], V: np.ndarray, vtol: np.ndarray):
@@ -538,8 +541,8 @@ def _pairs(segs: list[tuple], rows, eps: float) -> list[tuple[tuple[int, ...], M
 
 
 def _spline_map(orow, row, t0, t1, a0, a1, goal):
-    """s(a), a in [0, 1], as a clamped cubic B-spline (knots, coefficients) that puts the side
-    ``row`` on the owner's curve at t0 + a (t1 - t0), with s(0) = a0 and s(1) = a1 exactly:
+    """s(a), a in [0, 1], as a clamped B-spline of degree ``_MAP_DEGREE`` (knots, coefficients)
+    that puts the side ``row`` on the owner's curve at t0 + a (t1 - t0), with s(0) = a0 and s(1) = a1 exactly:
     fitted to projected parameters, spans doubled until the deviation is within ``goal`` (at most
     64 spans). Returns the map and its deviation (65 samples per span)."""
     from scipy.interpolate import make_lsq_spline
@@ -622,7 +625,7 @@ def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: in
                 w, dev = float(wm), devm
     if dev > _MAP_REL * eps:
         # the sides run along one curve at speeds no Moebius map relates (a polynomial side
-        # against a rational one): s(a) as a cubic spline through projected parameters
+        # against a rational one): s(a) as a spline through projected parameters
         smap, devp = _spline_map(orow, row, edge.t0, edge.t1, a0, a1, _MAP_REL * eps)
         if devp < dev:
             return Member(i, name, a0, a1, 1.0, devp, smap)

@@ -10,16 +10,17 @@ from __future__ import annotations
 import numpy as np
 from OCP.BRep import BRep_Builder
 from OCP.BRepGProp import BRepGProp
-from OCP.Geom import Geom_BezierSurface
-from OCP.Geom2d import Geom2d_Line
+from OCP.Geom import Geom_BezierCurve, Geom_BezierSurface
+from OCP.Geom2d import Geom2d_BSplineCurve, Geom2d_Line
 from OCP.gp import gp_Dir2d, gp_Pnt, gp_Pnt2d
 from OCP.GProp import GProp_GProps
-from OCP.TColgp import TColgp_Array2OfPnt
-from OCP.TColStd import TColStd_Array1OfReal, TColStd_Array2OfReal
+from OCP.TColgp import TColgp_Array1OfPnt, TColgp_Array1OfPnt2d, TColgp_Array2OfPnt
+from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal, TColStd_Array2OfReal
 from OCP.TopAbs import TopAbs_FACE, TopAbs_FORWARD, TopAbs_REVERSED
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Edge, TopoDS_Face, TopoDS_Shell, TopoDS_Vertex, TopoDS_Wire
 
+from ..core.bezier import curve_segment
 from ..errors import KernelError
 from ..topology import forward, side_row, wire_order
 from .extract import indexed
@@ -160,11 +161,8 @@ def _side_uv(side: str, s: float) -> gp_Pnt2d:
 
 def _pcurve(side: str, s0: float, s1: float, w: float, smap: np.ndarray | None = None):
     """The straight pcurve of a side piece: edge parameter a in [0, 1] to the side's s from s0 to
-    s1 (affine, or the rational linear map with end weights 1 and w, or the cubic spline ``smap``,
+    s1 (affine, or the rational linear map with end weights 1 and w, or the spline ``smap``,
     (knots, coefficients)); its poles all lie on the side."""
-    from OCP.Geom2d import Geom2d_BSplineCurve
-    from OCP.TColgp import TColgp_Array1OfPnt2d
-    from OCP.TColStd import TColStd_Array1OfInteger
 
     if smap is not None:
         knots_full, coef = smap
@@ -201,10 +199,6 @@ def _segment_curve(row: np.ndarray, t0: float, t1: float, rational: bool):
     """The piece [t0, t1] of a side's Bezier curve (homogeneous row) as a Bezier curve on [0, 1].
     An edge on its curve's whole range: a STEP reader finds the edge's parameters by projecting
     its vertices, which is exact only at the curve's ends (a sub-range came back 1e-8 off)."""
-    from OCP.Geom import Geom_BezierCurve
-    from OCP.TColgp import TColgp_Array1OfPnt
-
-    from ..core.bezier import curve_segment
 
     seg = curve_segment(row, t0, t1) if (t0, t1) != (0.0, 1.0) else row
     poles = TColgp_Array1OfPnt(1, len(seg))
