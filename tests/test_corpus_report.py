@@ -1,8 +1,9 @@
 """`watertight report` on real files agrees with the independent checker's published figures.
 
 The corpus README lists, per file, the max gap and free-edge count measured by
-``shared/tools/judge.py``; the report must agree within a factor of 2 (or both be below
-1e-9 x diagonal). Skips when ../shared/corpus is missing.
+``shared/tools/judge.py`` at equally spaced samples; measured at equal steps too, the report must
+agree within a factor of 2 (or both be below 1e-9 x diagonal). The report's own figure adds
+samples in every knot span and can only be larger. Skips when ../shared/corpus is missing.
 """
 
 from __future__ import annotations
@@ -23,9 +24,18 @@ def test_report_agrees_with_checker(name, tol):
     expected = TABLE.get(name)
     if expected is None:
         pytest.skip(f"{name} not in the corpus table")
+    from watertight_cli.gaps import max_gap
+    from watertight_cli.occ.extract import sample_tracks
+
     ins = inspect(str(path), tol)
     r = input_report(ins)
-    ours, theirs, diag = r["gap"]["max"], expected["max_gap"], r["diagonal"]
+    ours = max_gap(sample_tracks(ins.shape, tol.gap_samples, per_span=0))  # equal steps only
+    if r["sewing"] is not None:  # the report's figure includes the faces as read, before sewing
+        from watertight_cli.occ.io import read_shape
+
+        ours = max(ours, max_gap(sample_tracks(read_shape(str(path)).shape, tol.gap_samples, per_span=0)))
+    theirs, diag = expected["max_gap"], r["diagonal"]
+    assert r["gap"]["max"] >= ours
     assert r["faces"] == expected["faces"]
     assert abs(diag - expected["diag"]) <= 0.01 * expected["diag"]
     both_tiny = ours < 1e-9 * diag and theirs < 1e-9 * diag

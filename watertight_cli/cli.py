@@ -127,7 +127,8 @@ def main():
 @click.option("--max-gap", type=float, default=None, metavar="X",
               help="Gate: exit 3 when a file's largest gap exceeds X (model units, mm).")
 @click.option("--samples", type=click.IntRange(3, 10000), default=33, show_default=True,
-              help="Samples per edge for gap measurement (equally spaced, ends included).")
+              help="Equally spaced samples per edge for gap measurement (ends included); 3 more go "
+                   "inside every knot span of the edge's curves.")
 @click.option("-q", "--quiet", is_flag=True, help="No table on stderr.")
 @click.option("--html", "html_path", type=click.Path(dir_okay=False), default=None, metavar="PATH",
               help="Also write a self-contained HTML page to PATH: gap histogram, worst edges with "
@@ -136,9 +137,11 @@ def report(models, as_json, max_gap, samples, quiet, html_path):
     """Measure how far MODELS are from watertight.
 
     For every edge: the largest distance between its 3D curve C and each face's surface(pcurve),
-    and between the two faces' boundary curves S1(pc1) and S2(pc2), over equally spaced samples,
-    next to the edge's tolerance. For the model: faces by surface type, trimmed faces, free and
-    non-manifold edges, solids and shells, the diagonal and, for inputs whose faces are not
+    and between the two faces' boundary curves S1(pc1) and S2(pc2), over equally spaced samples
+    and three inside every knot span of C and the pcurves (knots crowd where a curve changes
+    fast: a pcurve that runs at another speed than C near an end shows there), next to the
+    edge's tolerance. For the model: faces by surface type, trimmed faces, free and non-manifold
+    edges, solids and shells, the diagonal and, for inputs whose faces are not
     connected (IGES 144, STEP surface models), what sewing recovered.
 
     A table goes to stderr, worst edges first; --json prints the full report on stdout.

@@ -42,7 +42,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     from .inspect import inspect
     from .occ.build import input_face_areas, open_shell, patch_face
     from .occ.io import write_shape
-    from .untrim import UntrimError, untrim, untrim_face
+    from .sameparam import retime
     from .verify import verify_untrim
 
     if stage not in STAGES:
@@ -55,26 +55,28 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     model = ins.model
     times["read"] = time.perf_counter() - t0
 
+    # pcurves that run at another speed than their edge (real files, near edge ends) get an
+    # exact re-timed copy, so the edge plan cuts every face at the same points (``sameparam``)
     t = time.perf_counter()
-    tick = progress("untrim", len(model.faces)) if progress else None
-    # the full conversion leaves half the tolerance to stage 2: substitution moves an approximated
-    # patch's boundary by up to its approximation error plus the input's gap
-    result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel) if stage == "full" else tol, tick)
-    if stage == "full":
-        # a face that half the tolerance cannot decompose (a fold that only a coarser side
-        # unfolds) gets the whole tolerance; the read-back check says if its total stays within
-        for i, fr in enumerate(result.faces):
-            if fr.problems:
-                try:
-                    retry = untrim_face(model.faces[fr.face], model, result.plan, tol)
-                except UntrimError:
-                    continue
-                if not retry.problems:
-                    result.faces[i] = retry
+    pristine = list(model.faces)
+    retimed = retime(model, tol)
+    prepared = list(model.faces)
+    t_retime = time.perf_counter() - t
+
+    t = time.perf_counter()
+    result = _stage1(model, tol, stage, progress)
+    # a re-timed pcurve is a repair: a face that stage 1 cannot decompose with it (cuts moved along
+    # a wiggly near-iso pcurve can fold a cell) keeps its input pcurves, and stage 1 runs again
+    failed = {fr.face for fr in result.faces if fr.problems}
+    back = {r.face for r in retimed if r.face in failed}
+    if back:
+        model.faces[:] = [pristine[i] if i in back else f for i, f in enumerate(prepared)]
+        retimed = [r for r in retimed if r.face not in back]
+        result = _stage1(model, tol, stage, progress)
     # stage 1 split in three: the edge plan, the cells, the reparameterization (which also takes
     # the retries and what the sub-timers do not see)
     sub = result.timings()
-    times["plan"], times["cells"] = sub["plan"], sub["cells"]
+    times["plan"], times["cells"] = sub["plan"] + t_retime, sub["cells"]
     times["reparam"] = max(0.0, time.perf_counter() - t - sub["plan"] - sub["cells"])
     if keep is not None:
         keep.update(inspection=ins, result=result)
@@ -86,6 +88,13 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     times["verify"] = time.perf_counter() - t
 
     report = untrim_report(ins, result, check, tol, src, dst)
+    report["retimed_pcurves"] = {
+        "count": len(retimed),
+        "mismatch_before_max": max((r.before for r in retimed), default=0.0),
+        "mismatch_after_max": max((r.after for r in retimed), default=0.0),
+        "trace_gap_max": max((r.trace_gap for r in retimed), default=0.0),
+        "faces_kept_as_read": len(back),
+    }
     report["timings"] = times
     if not check.ok:
         first = check.problems[0]
@@ -108,6 +117,27 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
         times["write"] = time.perf_counter() - t
     report["timings"] = times
     return report
+
+
+def _stage1(model, tol: Tolerances, stage: str, progress):
+    """Stage 1 on the whole model; in a full conversion with half the tolerance first (substitution
+    moves an approximated patch's boundary by up to its approximation error plus the input's gap,
+    so stage 2 gets the other half), and the whole tolerance for faces that half cannot decompose
+    (a fold that only a coarser side unfolds); the read-back check says if their total stays within."""
+    from .untrim import UntrimError, untrim, untrim_face
+
+    tick = progress("untrim", len(model.faces)) if progress else None
+    result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel) if stage == "full" else tol, tick)
+    if stage == "full":
+        for i, fr in enumerate(result.faces):
+            if fr.problems:
+                try:
+                    retry = untrim_face(model.faces[fr.face], model, result.plan, tol)
+                except UntrimError:
+                    continue
+                if not retry.problems:
+                    result.faces[i] = retry
+    return result
 
 
 def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None) -> dict:

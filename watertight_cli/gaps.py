@@ -1,7 +1,10 @@
 """Gap measurement on the array model: how far an edge's 3D curve and its faces' boundaries disagree.
 
 For every non-degenerate edge e with 3D curve C and faces f (each with surface S_f and pcurve
-pc_f, same-parameter with C), at ``Tolerances.gap_samples`` equally spaced parameters w:
+pc_f, same-parameter with C), at the parameters w of ``track_params``: ``Tolerances.gap_samples``
+equally spaced ones plus ``PER_SPAN`` inside every knot span of C and of the pcurves (knots crowd
+where a curve turns or changes speed, and a pcurve that runs at another speed than C over a short
+stretch near an end is missed by equal steps alone; see ``sameparam``):
 
 - ``curve_gap``  = max_w max_f |C(w) - S_f(pc_f(w))|
 - ``face_gap``   = max_w max_{f != g} |S_f(pc_f(w)) - S_g(pc_g(w))| (seams: both pcurves of the face)
@@ -21,6 +24,21 @@ import numpy as np
 
 from .model import Model
 from .tolerances import Tolerances
+
+#: Samples inside every knot span of an edge's 3D curve and pcurves, on top of the equal steps.
+PER_SPAN = 3
+
+
+def track_params(a: float, b: float, uniform: int, knot_vectors, per_span: int = PER_SPAN) -> np.ndarray:
+    """Sorted parameters in [a, b]: ``uniform`` equal steps (ends included) plus ``per_span`` points
+    inside every knot span (of any of ``knot_vectors``) that meets [a, b]."""
+    out = [np.linspace(a, b, uniform)]
+    inner = (np.arange(per_span) + 0.5) / per_span
+    for k in knot_vectors:
+        u = np.unique(np.clip(np.asarray(k, dtype=float), a, b))
+        if len(u) > 1:
+            out.append((u[:-1, None] + np.diff(u)[:, None] * inner[None, :]).ravel())
+    return np.unique(np.concatenate(out))
 
 
 @dataclass(frozen=True)
@@ -42,25 +60,32 @@ Tracks = dict[int, tuple[np.ndarray | None, list[tuple[int, np.ndarray]]]]
 """Per edge index: (C(w) (k, 3) or None, [(face index, S_f(pc_f(w)) (k, 3)), ...])."""
 
 
-def model_tracks(model: Model, tol: Tolerances) -> Tracks:
-    """Sample the array model's edges the same way the kernel sampler does (``occ.sample_tracks``).
+def model_tracks(model: Model, tol: Tolerances, params: dict[int, np.ndarray] | None = None) -> Tracks:
+    """Sample the array model's edges the same way the kernel sampler does (``occ.sample_tracks``),
+    or at ``params`` (per edge index; the kernel sampler's, so the two measure the same points).
 
     All samples of one face are evaluated in one vectorized call.
     """
-    k = tol.gap_samples
-    params = {e.index: np.linspace(e.first, e.last, k) for e in model.edges if not e.degenerate}
     requests: dict[int, list[tuple[int, object]]] = defaultdict(list)
+    knots: dict[int, list[np.ndarray]] = {e.index: [] if e.curve is None else [e.curve.knots]
+                                          for e in model.edges if not e.degenerate}
     for f in model.faces:
         for loop in f.loops:
             for ce in loop.coedges:
-                if ce.edge in params and ce.pcurve is not None:
+                if ce.edge in knots and ce.pcurve is not None:
                     requests[f.index].append((ce.edge, ce.pcurve))
+                    knots[ce.edge].append(ce.pcurve.knots)
+    given = params or {}
+    params = {ei: given[ei] if ei in given else
+              track_params(model.edges[ei].first, model.edges[ei].last, tol.gap_samples, kv)
+              for ei, kv in knots.items()}
     out: Tracks = {ei: (model.edges[ei].curve.evaluate(w) if model.edges[ei].curve is not None else None, [])
                    for ei, w in params.items()}
     for fi, reqs in requests.items():
         uv = np.concatenate([pc.evaluate(params[ei]) for ei, pc in reqs])
-        pts = model.faces[fi].surface.evaluate(uv).reshape(len(reqs), k, 3)
-        for (ei, _), p in zip(reqs, pts, strict=True):
+        pts = model.faces[fi].surface.evaluate(uv)
+        cuts = np.cumsum([len(params[ei]) for ei, _ in reqs])[:-1]
+        for (ei, _), p in zip(reqs, np.split(pts, cuts), strict=True):
             out[ei][1].append((fi, p))
     return out
 

@@ -496,7 +496,8 @@ def report_section(rep: dict, scene: Scene | None, settings: dict) -> str:
              "<h3>Gap distribution</h3>",
              _figure(gap_histogram([("input", gaps, "#dd8452")], marks),
                      "Per edge: the larger of C vs S(pc) and S1(pc1) vs S2(pc2) over "
-                     f"{g['samples_per_edge']} samples.", "gap histogram"),
+                     f"{g['samples_per_edge']} equal steps and "
+                     f"{g.get('samples_per_knot_span', 0)} samples in every knot span.", "gap histogram"),
              "<h3>Worst edges</h3>", worst_edges_table(rep["edge_gaps"])]
     if scene is not None:
         parts += ["<h3>The model</h3>",

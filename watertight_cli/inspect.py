@@ -68,12 +68,13 @@ def _inspect(path: str, tol: Tolerances, want_array_gaps: bool = True) -> Inspec
     clock.lap("read")
     shape, diag, sewing = prepare(read, str(path), tol)
     clock.lap("sew")
-    tracks = sample_tracks(shape, tol.gap_samples)
+    params: dict = {}
+    tracks = sample_tracks(shape, tol.gap_samples, params=params)
     clock.lap("sample")
     model = build_model(shape, read, diag, sewing, str(path), tol)
     clock.lap("arrays")
     gaps = edge_gaps(model, tracks)
-    array_gaps = edge_gaps(model, model_tracks(model, tol)) if want_array_gaps else []
+    array_gaps = edge_gaps(model, model_tracks(model, tol, params)) if want_array_gaps else []
     clock.lap("measure")
     if sewing is not None:
         # the input as read (faces apart): each face's own C vs S(pc), what other tools measure

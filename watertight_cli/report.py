@@ -8,6 +8,7 @@ from __future__ import annotations
 import statistics
 
 from . import __version__
+from .gaps import PER_SPAN
 from .inspect import Inspection, trimmed
 
 SCHEMA_VERSION = 1
@@ -60,6 +61,7 @@ def input_report(ins: Inspection) -> dict:
             "edges_over_tolerance": over,
             "max_edge_tolerance": max((e.tolerance for e in edges), default=0.0),
             "samples_per_edge": ins.samples,
+            "samples_per_knot_span": PER_SPAN,
         },
         "conversion": {
             "note": "the B-spline arrays the pipeline works on: their gaps, and the error bound of "

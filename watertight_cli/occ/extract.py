@@ -52,6 +52,7 @@ from OCP.TopTools import (
 )
 
 from ..errors import InputError, KernelError
+from ..gaps import PER_SPAN, track_params
 from ..model import (
     BSplineCurve,
     BSplineSurface,
@@ -467,13 +468,27 @@ def prepare(read: ReadResult, path: str, tol: Tolerances) -> tuple[TopoDS_Shape,
     return shape, diag, sewing
 
 
-def sample_tracks(shape: TopoDS_Shape, k: int) -> dict[int, tuple[np.ndarray | None, list]]:
-    """The input's own boundary geometry, sampled with the kernel at k equal edge parameters.
+def _kernel_knots(curve) -> np.ndarray:
+    """The distinct knots of a kernel curve (2D or 3D) that is a B-spline, or a trimmed one; else none."""
+    while isinstance(curve, (Geom_TrimmedCurve, Geom2d_TrimmedCurve)):
+        curve = curve.BasisCurve()
+    if isinstance(curve, (Geom_BSplineCurve, Geom2d_BSplineCurve)):
+        return _arr1(curve.Knots())
+    return np.zeros(0)
+
+
+def sample_tracks(shape: TopoDS_Shape, k: int, per_span: int = PER_SPAN,
+                  params: dict | None = None) -> dict[int, tuple[np.ndarray | None, list]]:
+    """The input's own boundary geometry, sampled with the kernel at the parameters of
+    ``gaps.track_params``: k equal steps plus a few inside every knot span of the edge's 3D curve
+    and pcurves.
 
     Returns, per non-degenerate edge index (the order of ``indexed(shape, TopAbs_EDGE)``):
-    (C(w) as (k, 3) or None, [(face index, S_f(pc_f(w)) as (k, 3)), ...]) with seams giving two
+    (C(w) as (m, 3) or None, [(face index, S_f(pc_f(w)) as (m, 3)), ...]) with seams giving two
     tracks for their face. These arrays feed the pure-numpy gap measurement in
     ``watertight_cli.gaps``: the report measures the input itself, not a conversion of it.
+    ``per_span`` 0 gives the equal steps only; ``params``, when given, receives each edge's
+    parameters (so ``gaps.model_tracks`` can sample the arrays at the same ones).
     """
     from OCP.BRepAdaptor import BRepAdaptor_Curve
 
@@ -486,20 +501,22 @@ def sample_tracks(shape: TopoDS_Shape, k: int) -> dict[int, tuple[np.ndarray | N
         if BRep_Tool.Degenerated_s(e):
             continue
         a, b = BRep_Tool.Range_s(e)
-        ws = np.linspace(a, b, k)
         c3 = BRep_Tool.Curve_s(e, 0.0, 0.0)
-        cpts = np.array([c3.Value(w).Coord() for w in ws]) if c3 is not None else None
-        tracks = []
+        knots = [] if c3 is None else [_kernel_knots(c3)]
+        uses = []
         for f in (_unique_faces(e2f.FindFromKey(e)) if e2f.Contains(e) else []):
             fi = fmap.FindIndex(f) - 1
-            uses = [e]
-            if BRep_Tool.IsClosed_s(e, f):
-                uses.append(TopoDS.Edge_s(e.Reversed()))
-            for use in uses:
-                if BRep_Tool.CurveOnSurface_s(use, f, 0.0, 0.0) is None:
+            for use in ([e, TopoDS.Edge_s(e.Reversed())] if BRep_Tool.IsClosed_s(e, f) else [e]):
+                pc = BRep_Tool.CurveOnSurface_s(use, f, 0.0, 0.0)
+                if pc is None:
                     continue
-                adaptor = BRepAdaptor_Curve(use, f)
-                tracks.append((fi, np.array([adaptor.Value(w).Coord() for w in ws])))
+                knots.append(_kernel_knots(pc))
+                uses.append((fi, BRepAdaptor_Curve(use, f)))
+        ws = track_params(a, b, k, knots, per_span)
+        if params is not None:
+            params[ei - 1] = ws
+        cpts = np.array([c3.Value(w).Coord() for w in ws]) if c3 is not None else None
+        tracks = [(fi, np.array([adaptor.Value(w).Coord() for w in ws])) for fi, adaptor in uses]
         out[ei - 1] = (cpts, tracks)
     return out
 

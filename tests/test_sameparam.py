@@ -1,0 +1,107 @@
+"""Same-parameter repair (``sameparam``) and the knot-following gap samples (``gaps.track_params``).
+
+The synthetic face is the plane z = 0 over [0, 1]^2. The edge curve runs along the parabola
+v = u^2 as C(t) = (t, t^2, 0); the pcurves trace the same parabola (or one beside it) at other speeds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from watertight_cli.core.bspline import insert_knot
+from watertight_cli.gaps import track_params
+from watertight_cli.model import BSplineCurve, BSplineSurface, Coedge, Edge, Face, Loop, Model
+from watertight_cli.sameparam import retime
+from watertight_cli.tolerances import Tolerances
+
+TOL = Tolerances()
+
+
+def _bezier_through(f, degree: int) -> BSplineCurve:
+    """The degree-``degree`` Bezier curve equal to the polynomial curve f on [0, 1]."""
+    from math import comb
+
+    x = np.linspace(0, 1, degree + 1)
+    B = np.array([[comb(degree, i) * xi ** i * (1 - xi) ** (degree - i) for i in range(degree + 1)]
+                  for xi in x])
+    poles = np.linalg.solve(B, f(x))
+    return BSplineCurve(degree, np.r_[[0.0] * (degree + 1), [1.0] * (degree + 1)], poles)
+
+
+def _model(pcurve: BSplineCurve) -> Model:
+    plane = BSplineSurface(1, 1, np.array([0, 0, 1, 1.0]), np.array([0, 0, 1, 1.0]),
+                           np.array([[[0, 0, 0], [0, 1, 0]], [[1, 0, 0], [1, 1, 0]]], dtype=float))
+    # C(t) = (t, t^2, 0), with knots crowding near t = 0 as in the files where this happens
+    c = _bezier_through(lambda t: np.stack([t, t * t, 0 * t], -1), 2)
+    knots, poles = c.knots, c.poles
+    for u in (0.001, 0.003, 0.01, 0.03, 0.1, 0.3):
+        knots, poles = insert_knot(knots, 2, poles, u)
+    curve = BSplineCurve(2, knots, poles)
+    edge = Edge(0, curve, 0.0, 1.0, 1e-7, (0, 1), (0,), False, False)
+    face = Face(0, plane, "Plane", False, (Loop((Coedge(0, False, pcurve, 0.0, 1.0),), True),),
+                (0.0, 1.0, 0.0, 1.0))
+    return Model("synthetic", [face], [edge], np.array([[0, 0, 0], [1, 1, 0.0]]), np.sqrt(2.0), 0, 1)
+
+
+def _slow_start(s):
+    """A monotone re-timing of [0, 1] that lags s by up to 0.03 (degree 4)."""
+    return s + 0.3 * s * (1 - s) ** 3
+
+
+def test_a_pcurve_at_another_speed_is_retimed_exactly_onto_the_edge():
+    g = _slow_start
+    pc = _bezier_through(lambda s: np.stack([g(s), g(s) ** 2], -1), 8)
+    m = _model(pc)
+    t = np.linspace(0, 1, 2001)
+    c = m.edges[0].curve.evaluate(t)
+    before = np.abs(pc.evaluate(t)[:, 0] - c[:, 0]).max()
+    assert before > 0.02  # the set-up: S(pc(t)) runs 0.03 behind C(t)
+
+    done = retime(m, TOL)
+
+    assert len(done) == 1 and done[0].before > 0.02
+    new = m.faces[0].loops[0].coedges[0].pcurve
+    uv = new.evaluate(t)
+    # the trim does not move: the new pcurve traces the same parabola, to rounding
+    assert np.abs(uv[:, 1] - uv[:, 0] ** 2).max() < 1e-14
+    assert np.abs(uv[[0, -1]] - pc.evaluate(np.array([0.0, 1.0]))).max() < 1e-15
+    # and runs with C: within stage 2's half of the tolerance everywhere
+    floor = 0.5 * TOL.approx_rel * m.diagonal
+    after = np.linalg.norm(m.faces[0].surface.evaluate(uv) - c, axis=1).max()
+    assert after <= floor and done[0].after <= floor, (after, done[0])
+    assert done[0].trace_gap < 1e-12
+    # same degree, no approximation recorded
+    assert new.degree == pc.degree and m.faces[0].approximation == 0.0
+
+
+def test_a_same_parameter_pcurve_is_left_alone():
+    pc = _bezier_through(lambda s: np.stack([s, s * s], -1), 2)
+    m = _model(pc)
+    assert retime(m, TOL) == []
+    assert m.faces[0].loops[0].coedges[0].pcurve is pc
+
+
+def test_a_pcurve_beside_the_edge_is_a_gap_not_a_timing_and_is_left_alone():
+    """The trace runs 0.05 beside C at C's own speed: re-timing cannot help, so nothing changes."""
+    pc = _bezier_through(lambda s: np.stack([s, s * s + 0.05], -1), 2)
+    m = _model(pc)
+    assert retime(m, TOL) == []
+    assert m.faces[0].loops[0].coedges[0].pcurve is pc
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=0, max_size=12), st.integers(3, 40), st.integers(1, 4))
+def test_track_params_put_samples_in_every_knot_span(knots, uniform, per_span):
+    a, b = 0.0, 1.0
+    kv = np.sort(np.r_[[a] * 3, knots, [b] * 3])
+    w = track_params(a, b, uniform, [kv], per_span)
+    assert w[0] == a and w[-1] == b and np.all(np.diff(w) > 0)
+    assert np.all(np.isin(np.linspace(a, b, uniform), w))
+    u = np.unique(kv)
+    for lo, hi in zip(u[:-1], u[1:], strict=True):
+        if hi - lo < 1e-9:  # a span a few ulps wide has no room for samples
+            continue
+        inside = np.count_nonzero((w > lo) & (w < hi))
+        assert inside >= per_span

@@ -1,0 +1,259 @@
+"""Same-parameter repair of pcurves: make S(pc(t)) run with the edge's curve C(t).
+
+Stage 1 cuts every edge at one list of edge parameters (the edge plan) and reads the cut on each
+face as pc_f(t); stage 2 puts C(t) into the face's side at the same parameters. Both rely on
+S_f(pc_f(t)) being near C(t) for every t, not only as a point set. Real files break this near edge
+ends: in ``gmsh__wing_fuselage.step`` one pcurve runs at another speed than its edge over the first
+1 % of the edge, so S(pc(t)) is 0.22 from C(t) while the two curves are only 0.014 apart as sets.
+Uniform samples (the kernel's same-parameter check, the gap report) step over such a stretch.
+
+This module finds such coedges with samples that follow the knots of both curves and gives them a
+new pcurve with the same trace in the face's domain, re-timed so that S(pc(t)) is near C(t):
+
+    phi(t) = argmin_s |S(pc(s)) - C(t)|  (made monotone),   pc_new = pc o phi_lin  (exact)
+
+where phi_lin is phi interpolated linearly between nodes: the edge curve's knots, each pcurve knot
+at phi^-1 (so every piece lies in one pcurve span, and the edge plan gets no new cuts from them),
+and more nodes where S(pc_new(t)) still runs farther from C(t) than twice the trace does plus
+half the tolerance (stage 2's share).
+Composing a Bezier piece with a linear map is exact, so the trim does not move at all and stage 1
+stays exact. Coedges whose mismatch is not mainly one of timing (the trace itself is about as far
+from C as S(pc(t)) is) keep their pcurve: re-timing would not help them.
+Pure numpy/scipy on the array model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .core.bezier import curve_segment
+from .core.bspline import to_bezier
+from .gaps import track_params
+from .model import BSplineCurve, Coedge, Face, Loop, Model
+from .tolerances import Tolerances
+
+#: Samples in each knot span of the edge curve and of the pcurve, and uniform samples per coedge.
+PER_SPAN, UNIFORM = 8, 128
+#: Rounds of adding nodes where the composed pcurve still runs off C (each adds at most one node
+#: per node interval).
+REFINE_ROUNDS = 8
+#: A coedge is re-timed when S(pc(t)) stands farther from C(t) than this factor times the distance
+#: of the trace from C (so the mismatch is mostly timing, not a gap).
+TIMING_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class Retimed:
+    """One re-timed coedge: where, how far S(pc(t)) was from C(t) before and after, how far C is
+    from the trace (the gap that re-timing cannot close) and the number of inner nodes of phi."""
+
+    face: int
+    edge: int
+    before: float
+    after: float
+    trace_gap: float
+    nodes: int
+
+
+def sample_params(a: float, b: float, knot_vectors: list[np.ndarray]) -> np.ndarray:
+    """Samples of [a, b] that crowd where the knots of the edge curve and the pcurve crowd."""
+    return track_params(a, b, UNIFORM, knot_vectors, PER_SPAN)
+
+
+def _phi(t: np.ndarray, c: np.ndarray, trace, s_grid: np.ndarray | None = None) -> np.ndarray:
+    """Parameters s of the trace points nearest to the points c (taken at parameters t).
+
+    trace(s) -> points. Nearest point of the trace at ``s_grid`` (sorted, default t; k-d tree),
+    then the bracket around it is narrowed by 9-point searches (a factor 4 per round) and two
+    Newton steps finish. Not yet monotone: see ``_monotone``."""
+    if s_grid is None:
+        s_grid = t
+    pts = trace(s_grid)
+    _, k = cKDTree(pts).query(c)
+    lo = s_grid[np.maximum(k - 1, 0)]
+    hi = s_grid[np.minimum(k + 1, len(s_grid) - 1)]
+    frac = np.linspace(0.0, 1.0, 9)
+    mid = s_grid[k]
+    for _ in range(6):
+        cand = lo[:, None] + (hi - lo)[:, None] * frac[None, :]
+        d = np.linalg.norm(trace(cand.ravel()).reshape(len(t), 9, -1) - c[:, None, :], axis=2)
+        j = np.argmin(d, axis=1)
+        step = (hi - lo) / 8
+        mid = cand[np.arange(len(t)), j]
+        lo, hi = np.maximum(mid - step, lo), np.minimum(mid + step, hi)
+    s = mid.copy()
+    h = 1e-6 * (t[-1] - t[0])
+    for _ in range(2):  # Newton steps on (trace(s) - c) . trace'(s) = 0, central differences
+        d = trace(np.concatenate([s - h, s, s + h])).reshape(3, len(s), -1)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            tan = (d[2] - d[0]) / (2 * h)
+            step = np.einsum("ij,ij->i", d[1] - c, tan) / np.maximum(np.einsum("ij,ij->i", tan, tan), 1e-300)
+        s = np.clip(np.where(np.isfinite(step), s - step, s), lo, hi)
+    return s
+
+
+def _monotone(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """s with its ends pinned to t's (the vertices stay) and made non-decreasing."""
+    s = s.copy()
+    s[0], s[-1] = t[0], t[-1]
+    return np.maximum.accumulate(s)
+
+
+def retime(model: Model, tol: Tolerances) -> list[Retimed]:
+    """Re-time the pcurves of ``model`` that are not same-parameter with their edge (in place:
+    faces are replaced by copies with new pcurves). Returns one entry per re-timed coedge."""
+    diag = model.diagonal
+    # stage 2 may move a boundary by half the tolerance (the other half is stage 1's): a timing
+    # mismatch within that is left, and re-timing stops once the rest is within it
+    floor = 0.5 * tol.approx_rel * diag
+    done: list[Retimed] = []
+    for fi, face in enumerate(model.faces):
+        surf = face.surface
+        new_loops, changed = [], False
+        for loop in face.loops:
+            coedges = []
+            for ce in loop.coedges:
+                edge = model.edges[ce.edge]
+                out = None
+                if (ce.pcurve is not None and edge.curve is not None and not edge.degenerate
+                        and abs(ce.first - edge.first) + abs(ce.last - edge.last)
+                        <= 1e-12 * max(abs(edge.last - edge.first), 1e-300)):
+                    out = _retime_one(fi, ce, edge, surf, floor)
+                if out is None:
+                    coedges.append(ce)
+                    continue
+                pc, rec = out
+                coedges.append(replace(ce, pcurve=pc))
+                done.append(rec)
+                changed = True
+            new_loops.append(Loop(tuple(coedges), loop.outer))
+        if changed:
+            model.faces[fi] = Face(face.index, surf, face.surface_type, face.reversed, tuple(new_loops),
+                                   face.uv_bounds, face.approximation)
+    return done
+
+
+def _compose(pc: BSplineCurve, tn: np.ndarray, sn: np.ndarray) -> BSplineCurve:
+    """pc o phi exactly, for phi piecewise linear through the nodes (tn, sn) (both increasing, each
+    [sn_i, sn_i+1] inside one span of pc): one Bezier piece per node interval, C0 at the nodes."""
+    p = pc.degree
+    br, spans = to_bezier(pc.knots, p, pc.homogeneous())
+    poles = []
+    for s0, s1 in zip(sn[:-1], sn[1:], strict=True):
+        j = int(np.clip(np.searchsorted(br, 0.5 * (s0 + s1), side="right") - 1, 0, len(spans) - 1))
+        x0, x1 = br[j], br[j + 1]
+        H = curve_segment(spans[j], (s0 - x0) / (x1 - x0), (s1 - x0) / (x1 - x0))
+        poles.append(H[1:] if poles else H)
+    H = np.concatenate(poles)
+    knots = np.concatenate([[tn[0]] * (p + 1), np.repeat(tn[1:-1], p), [tn[-1]] * (p + 1)])
+    if pc.rational:
+        return BSplineCurve(p, knots, H[:, :-1] / H[:, -1:], H[:, -1].copy())
+    return BSplineCurve(p, knots, H)
+
+
+def _retime_one(fi: int, ce: Coedge, edge, surf, floor: float):
+    """A re-timed pcurve for one coedge, or None when it is same-parameter already, when its
+    mismatch is mostly a gap, or when re-timing does not bring S(pc(t)) nearer to C(t)."""
+    pc = ce.pcurve
+    a, b = edge.first, edge.last
+    ck = np.unique(edge.curve.knots)
+    ck = ck[(ck > a) & (ck < b)]
+
+    def trace(s):
+        return surf.evaluate(pc.evaluate(s))
+
+    t = np.union1d(sample_params(a, b, [edge.curve.knots, pc.knots]), ck)
+    c = edge.curve.evaluate(t)
+    before_d = np.linalg.norm(trace(t) - c, axis=1)
+    before = float(before_d.max())
+    if before <= floor:
+        return None
+    s = _monotone(t, _phi(t, c, trace))
+    near = np.linalg.norm(trace(s) - c, axis=1)  # distance of C(t) from the trace
+    trace_gap = float(near.max())
+    if before <= TIMING_FACTOR * trace_gap:
+        return None
+    # nodes: the edge curve's knots where phi was measured, and each pcurve knot at phi^-1 (so
+    # every piece stays inside one pcurve span); these are cuts of the edge plan already
+    pk = np.unique(pc.knots)
+    pk = pk[(pk > a) & (pk < b)]
+    tk = _snap(np.interp(pk, s, t), pk, ck, edge.curve, floor)
+    free_ck = ~np.isin(ck, tk)
+    tn = np.concatenate([[a], ck[free_ck], tk, [b]])
+    sn = np.concatenate([[a], s[np.searchsorted(t, ck[free_ck])], pk, [b]])
+    fixed = np.concatenate([[True], np.zeros(int(free_ck.sum()), bool), np.ones(len(pk), bool), [True]])
+    width = 1e-9 * (b - a)
+    for _ in range(REFINE_ROUNDS + 1):
+        order = np.lexsort((~fixed, tn))
+        tn, sn, fixed = tn[order], sn[order], fixed[order]
+        nodes = _strict(tn, sn, fixed, width)
+        if nodes is None:
+            return None
+        tn, sn, fixed = nodes
+        new = _compose(pc, tn, sn)
+        tt = np.union1d(t, 0.5 * (tn[:-1] + tn[1:]))
+        cc = edge.curve.evaluate(tt)
+        r = np.linalg.norm(surf.evaluate(new.evaluate(tt)) - cc, axis=1)
+        allowed = TIMING_FACTOR * np.interp(tt, t, near) + floor
+        over = r > allowed
+        if not over.any():
+            break
+        # one more node in each interval where the composed pcurve still runs off C
+        k = np.unique(np.clip(np.searchsorted(tn, tt[over], side="right") - 1, 0, len(tn) - 2))
+        tm = 0.5 * (tn[k] + tn[k + 1])
+        sm = _phi(tm, edge.curve.evaluate(tm), trace, np.union1d(t, tm))
+        tn, sn = np.concatenate([tn, tm]), np.concatenate([sn, sm])
+        fixed = np.concatenate([fixed, np.zeros(len(tm), bool)])
+    after = float(r.max())
+    if after >= before:
+        return None
+    return new, Retimed(fi, ce.edge, before, after, trace_gap, len(tn) - 2)
+
+
+def _snap(tk: np.ndarray, pk: np.ndarray, ck: np.ndarray, curve: BSplineCurve, within: float) -> np.ndarray:
+    """Node parameters for the pcurve knots ``pk``, first guessed at ``tk`` = phi^-1(pk).
+
+    Where re-timing hardly moves a knot (C(pk) within ``within`` of C(tk)) it stays at pk, and
+    otherwise it moves onto a knot of the edge curve (``ck``) within ``within``, one node per knot.
+    Pcurves that were nearly same-parameter had their knots at the edge's parameters, shared with
+    the other face's pcurve and with C; re-timed, each face's knots would land a hair apart and
+    leave cuts a sliver apart (the timing this gives up is within ``within``)."""
+    out = tk.copy()
+    if not len(tk):
+        return out
+    stay = np.linalg.norm(curve.evaluate(pk) - curve.evaluate(tk), axis=1) <= within
+    out[stay] = pk[stay]
+    if not len(ck):
+        return out
+    j = np.clip(np.searchsorted(ck, tk), 1, len(ck)) - 1
+    j = np.where((j + 1 < len(ck)) & (np.abs(ck[np.minimum(j + 1, len(ck) - 1)] - tk) < np.abs(ck[j] - tk)),
+                 j + 1, j)
+    close = ~stay & (np.linalg.norm(curve.evaluate(tk) - curve.evaluate(ck[j]), axis=1) <= within)
+    taken = set(np.flatnonzero(np.isin(ck, out[stay])).tolist())
+    for i in np.flatnonzero(close):
+        if j[i] not in taken:
+            taken.add(int(j[i]))
+            out[i] = ck[j[i]]
+    return out
+
+
+def _strict(tn, sn, fixed, width):
+    """Drop free nodes until t and s both increase by more than ``width`` from node to node (the
+    pcurve-knot nodes and the ends stay: a piece must not straddle a pcurve knot)."""
+    keep = np.ones(len(tn), bool)
+    last = 0
+    for i in range(1, len(tn)):
+        ok = tn[i] - tn[last] > width and sn[i] - sn[last] > width
+        if ok:
+            last = i
+        elif not fixed[i]:
+            keep[i] = False
+        elif not fixed[last]:
+            keep[last] = False
+            last = i
+        else:
+            return None  # two pcurve knots (or an end) closer than width in t: no clean pieces
+    return tn[keep], sn[keep], fixed[keep]
