@@ -12,13 +12,14 @@ new pcurve with the same trace in the face's domain, re-timed so that S(pc(t)) i
 
     phi(t) = argmin_s |S(pc(s)) - C(t)|  (made monotone),   pc_new = pc o phi_lin  (exact)
 
-where phi_lin is phi interpolated linearly between nodes: the edge curve's knots, each pcurve knot
-at phi^-1 (so every piece lies in one pcurve span, and the edge plan gets no new cuts from them),
-and more nodes where S(pc_new(t)) still runs farther from C(t) than twice the trace does plus
-half the tolerance (stage 2's share).
-Composing a Bezier piece with a linear map is exact, so the trim does not move at all and stage 1
-stays exact. Coedges whose mismatch is not mainly one of timing (the trace itself is about as far
-from C as S(pc(t)) is) keep their pcurve: re-timing would not help them.
+where phi_lin is phi interpolated linearly between nodes: the edge curve's knots, and each pcurve
+knot at phi^-1 (so every piece lies in one pcurve span). A knot that re-timing moves by less than
+half the tolerance (in 3D) stays where it was, or moves onto a knot of C, so both faces of an
+edge keep cutting it at the same parameters. Composing a Bezier piece with a linear map is exact:
+the trim does not move at all and stage 1 stays exact. Between nodes S(pc_new(t)) can still run
+off C(t) (``Retimed.after``); stage 2 moves the boundary by that much. Coedges whose mismatch is
+not mainly one of timing (the trace itself is about as far from C as S(pc(t)) is) keep their
+pcurve: re-timing would not help them.
 Pure numpy/scipy on the array model.
 """
 
@@ -37,9 +38,6 @@ from .tolerances import Tolerances
 
 #: Samples in each knot span of the edge curve and of the pcurve, and uniform samples per coedge.
 PER_SPAN, UNIFORM = 8, 128
-#: Rounds of adding nodes where the composed pcurve still runs off C (each adds at most one node
-#: per node interval).
-REFINE_ROUNDS = 8
 #: A coedge is re-timed when S(pc(t)) stands farther from C(t) than this factor times the distance
 #: of the trace from C (so the mismatch is mostly timing, not a gap).
 TIMING_FACTOR = 2.0
@@ -63,14 +61,13 @@ def sample_params(a: float, b: float, knot_vectors: list[np.ndarray]) -> np.ndar
     return track_params(a, b, UNIFORM, knot_vectors, PER_SPAN)
 
 
-def _phi(t: np.ndarray, c: np.ndarray, trace, s_grid: np.ndarray | None = None) -> np.ndarray:
+def _phi(t: np.ndarray, c: np.ndarray, trace) -> np.ndarray:
     """Parameters s of the trace points nearest to the points c (taken at parameters t).
 
-    trace(s) -> points. Nearest point of the trace at ``s_grid`` (sorted, default t; k-d tree),
-    then the bracket around it is narrowed by 9-point searches (a factor 4 per round) and two
-    Newton steps finish. Not yet monotone: see ``_monotone``."""
-    if s_grid is None:
-        s_grid = t
+    trace(s) -> points. Nearest point of the trace at the parameters t (k-d tree), then the
+    bracket around it is narrowed by 9-point searches (a factor 4 per round) and two Newton
+    steps finish. Not yet monotone: see ``_monotone``."""
+    s_grid = t
     pts = trace(s_grid)
     _, k = cKDTree(pts).query(c)
     lo = s_grid[np.maximum(k - 1, 0)]
@@ -107,7 +104,7 @@ def retime(model: Model, tol: Tolerances) -> list[Retimed]:
     faces are replaced by copies with new pcurves). Returns one entry per re-timed coedge."""
     diag = model.diagonal
     # stage 2 may move a boundary by half the tolerance (the other half is stage 1's): a timing
-    # mismatch within that is left, and re-timing stops once the rest is within it
+    # mismatch within that is left as it is
     floor = 0.5 * tol.approx_rel * diag
     done: list[Retimed] = []
     for fi, face in enumerate(model.faces):
@@ -177,7 +174,10 @@ def _retime_one(fi: int, ce: Coedge, edge, surf, floor: float):
     if before <= TIMING_FACTOR * trace_gap:
         return None
     # nodes: the edge curve's knots where phi was measured, and each pcurve knot at phi^-1 (so
-    # every piece stays inside one pcurve span); these are cuts of the edge plan already
+    # every piece stays inside one pcurve span). C's knots are cuts of the edge plan already; a
+    # pcurve knot that moves becomes a new one. More nodes would bring S(pc(t)) nearer to C(t)
+    # between them, but every node is a cut across the face: refined to twice the trace's
+    # distance, gmsh__917_fusee.step got 17 % more patches and no fewer I4 failures.
     pk = np.unique(pc.knots)
     pk = pk[(pk > a) & (pk < b)]
     tk = _snap(np.interp(pk, s, t), pk, ck, edge.curve, floor)
@@ -185,29 +185,14 @@ def _retime_one(fi: int, ce: Coedge, edge, surf, floor: float):
     tn = np.concatenate([[a], ck[free_ck], tk, [b]])
     sn = np.concatenate([[a], s[np.searchsorted(t, ck[free_ck])], pk, [b]])
     fixed = np.concatenate([[True], np.zeros(int(free_ck.sum()), bool), np.ones(len(pk), bool), [True]])
-    width = 1e-9 * (b - a)
-    for _ in range(REFINE_ROUNDS + 1):
-        order = np.lexsort((~fixed, tn))
-        tn, sn, fixed = tn[order], sn[order], fixed[order]
-        nodes = _strict(tn, sn, fixed, width)
-        if nodes is None:
-            return None
-        tn, sn, fixed = nodes
-        new = _compose(pc, tn, sn)
-        tt = np.union1d(t, 0.5 * (tn[:-1] + tn[1:]))
-        cc = edge.curve.evaluate(tt)
-        r = np.linalg.norm(surf.evaluate(new.evaluate(tt)) - cc, axis=1)
-        allowed = TIMING_FACTOR * np.interp(tt, t, near) + floor
-        over = r > allowed
-        if not over.any():
-            break
-        # one more node in each interval where the composed pcurve still runs off C
-        k = np.unique(np.clip(np.searchsorted(tn, tt[over], side="right") - 1, 0, len(tn) - 2))
-        tm = 0.5 * (tn[k] + tn[k + 1])
-        sm = _phi(tm, edge.curve.evaluate(tm), trace, np.union1d(t, tm))
-        tn, sn = np.concatenate([tn, tm]), np.concatenate([sn, sm])
-        fixed = np.concatenate([fixed, np.zeros(len(tm), bool)])
-    after = float(r.max())
+    order = np.lexsort((~fixed, tn))
+    nodes = _strict(tn[order], sn[order], fixed[order], 1e-9 * (b - a))
+    if nodes is None:
+        return None
+    tn, sn, _ = nodes
+    new = _compose(pc, tn, sn)
+    tt = np.union1d(t, 0.5 * (tn[:-1] + tn[1:]))
+    after = float(np.linalg.norm(surf.evaluate(new.evaluate(tt)) - edge.curve.evaluate(tt), axis=1).max())
     if after >= before:
         return None
     return new, Retimed(fi, ce.edge, before, after, trace_gap, len(tn) - 2)
