@@ -61,13 +61,15 @@ def sample_params(a: float, b: float, knot_vectors: list[np.ndarray]) -> np.ndar
     return track_params(a, b, UNIFORM, knot_vectors, PER_SPAN)
 
 
-def _phi(t: np.ndarray, c: np.ndarray, trace) -> np.ndarray:
+def _phi(t: np.ndarray, c: np.ndarray, trace, s_grid: np.ndarray | None = None) -> np.ndarray:
     """Parameters s of the trace points nearest to the points c (taken at parameters t).
 
-    trace(s) -> points. Nearest point of the trace at the parameters t (k-d tree), then the
+    trace(s) -> points. Nearest point of the trace at the parameters ``s_grid`` (sorted; default
+    t) by a k-d tree, then the
     bracket around it is narrowed by 9-point searches (a factor 4 per round) and two Newton
     steps finish. Not yet monotone: see ``_monotone``."""
-    s_grid = t
+    if s_grid is None:
+        s_grid = t
     pts = trace(s_grid)
     _, k = cKDTree(pts).query(c)
     lo = s_grid[np.maximum(k - 1, 0)]
@@ -109,28 +111,47 @@ def retime(model: Model, tol: Tolerances) -> list[Retimed]:
     done: list[Retimed] = []
     for fi, face in enumerate(model.faces):
         surf = face.surface
-        new_loops, changed = [], False
-        for loop in face.loops:
+        todo = _mismatched(model, face, floor)
+        if not todo:
+            continue
+        new_loops = []
+        for li, loop in enumerate(face.loops):
             coedges = []
-            for ce in loop.coedges:
-                edge = model.edges[ce.edge]
-                out = None
-                if (ce.pcurve is not None and edge.curve is not None and not edge.degenerate
-                        and abs(ce.first - edge.first) + abs(ce.last - edge.last)
-                        <= 1e-12 * max(abs(edge.last - edge.first), 1e-300)):
-                    out = _retime_one(fi, ce, edge, surf, floor)
+            for ci, ce in enumerate(loop.coedges):
+                out = _retime_one(fi, ce, model.edges[ce.edge], surf, floor) if (li, ci) in todo else None
                 if out is None:
                     coedges.append(ce)
                     continue
                 pc, rec = out
                 coedges.append(replace(ce, pcurve=pc))
                 done.append(rec)
-                changed = True
             new_loops.append(Loop(tuple(coedges), loop.outer))
-        if changed:
-            model.faces[fi] = Face(face.index, surf, face.surface_type, face.reversed, tuple(new_loops),
-                                   face.uv_bounds, face.approximation)
+        model.faces[fi] = Face(face.index, surf, face.surface_type, face.reversed, tuple(new_loops),
+                               face.uv_bounds, face.approximation)
     return done
+
+
+def _mismatched(model: Model, face: Face, floor: float) -> set[tuple[int, int]]:
+    """(loop, coedge) indices of the face's coedges whose S(pc(t)) stands farther than ``floor``
+    from C(t) somewhere: one surface evaluation for all of the face's samples."""
+    keys, ts, uvs, cs = [], [], [], []
+    for li, loop in enumerate(face.loops):
+        for ci, ce in enumerate(loop.coedges):
+            edge = model.edges[ce.edge]
+            if (ce.pcurve is None or edge.curve is None or edge.degenerate
+                    or abs(ce.first - edge.first) + abs(ce.last - edge.last)
+                    > 1e-12 * max(abs(edge.last - edge.first), 1e-300)):
+                continue
+            t = sample_params(edge.first, edge.last, [edge.curve.knots, ce.pcurve.knots])
+            keys.append((li, ci))
+            ts.append(len(t))
+            uvs.append(ce.pcurve.evaluate(t))
+            cs.append(edge.curve.evaluate(t))
+    if not keys:
+        return set()
+    d = np.linalg.norm(face.surface.evaluate(np.concatenate(uvs)) - np.concatenate(cs), axis=1)
+    worst = np.maximum.reduceat(d, np.r_[0, np.cumsum(ts)[:-1]])
+    return {k for k, w in zip(keys, worst, strict=True) if w > floor}
 
 
 def _compose(pc: BSplineCurve, tn: np.ndarray, sn: np.ndarray) -> BSplineCurve:
@@ -167,6 +188,11 @@ def _retime_one(fi: int, ce: Coedge, edge, surf, floor: float):
     before_d = np.linalg.norm(trace(t) - c, axis=1)
     before = float(before_d.max())
     if before <= floor:
+        return None
+    # the trace is nearer to C(t) than S(pc(t)) is, so only samples off by at least
+    # before / TIMING_FACTOR can show a gap that large: project those first
+    sel = before_d >= before / TIMING_FACTOR
+    if np.linalg.norm(trace(_phi(t[sel], c[sel], trace, t)) - c[sel], axis=1).max() * TIMING_FACTOR >= before:
         return None
     s = _monotone(t, _phi(t, c, trace))
     near = np.linalg.norm(trace(s) - c, axis=1)  # distance of C(t) from the trace
