@@ -30,8 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .core.bezier import curve_segment
-from .core.bspline import to_bezier
+from .core.bspline import split_curve_at
 from .gaps import track_params
 from .model import BSplineCurve, Coedge, Face, Loop, Model
 from .tolerances import Tolerances
@@ -65,9 +64,8 @@ def _phi(t: np.ndarray, c: np.ndarray, trace, s_grid: np.ndarray | None = None) 
     """Parameters s of the trace points nearest to the points c (taken at parameters t).
 
     trace(s) -> points. Nearest point of the trace at the parameters ``s_grid`` (sorted; default
-    t) by a k-d tree, then the
-    bracket around it is narrowed by 9-point searches (a factor 4 per round) and two Newton
-    steps finish. Not yet monotone: see ``_monotone``."""
+    t) by a k-d tree, then the bracket around it is narrowed by 9-point searches (a factor 4 per
+    round) and two Newton steps finish. Not yet monotone: see ``_monotone``."""
     if s_grid is None:
         s_grid = t
     pts = trace(s_grid)
@@ -114,7 +112,7 @@ def retime(model: Model, tol: Tolerances) -> list[Retimed]:
         todo = _mismatched(model, face, floor)
         if not todo:
             continue
-        new_loops = []
+        new_loops, changed = [], False
         for li, loop in enumerate(face.loops):
             coedges = []
             for ci, ce in enumerate(loop.coedges):
@@ -125,9 +123,11 @@ def retime(model: Model, tol: Tolerances) -> list[Retimed]:
                 pc, rec = out
                 coedges.append(replace(ce, pcurve=pc))
                 done.append(rec)
+                changed = True
             new_loops.append(Loop(tuple(coedges), loop.outer))
-        model.faces[fi] = Face(face.index, surf, face.surface_type, face.reversed, tuple(new_loops),
-                               face.uv_bounds, face.approximation)
+        if changed:
+            model.faces[fi] = Face(face.index, surf, face.surface_type, face.reversed, tuple(new_loops),
+                                   face.uv_bounds, face.approximation)
     return done
 
 
@@ -154,18 +154,20 @@ def _mismatched(model: Model, face: Face, floor: float) -> set[tuple[int, int]]:
     return {k for k, w in zip(keys, worst, strict=True) if w > floor}
 
 
-def _compose(pc: BSplineCurve, tn: np.ndarray, sn: np.ndarray) -> BSplineCurve:
-    """pc o phi exactly, for phi piecewise linear through the nodes (tn, sn) (both increasing, each
-    [sn_i, sn_i+1] inside one span of pc): one Bezier piece per node interval, C0 at the nodes."""
+def _compose(pc: BSplineCurve, tn: np.ndarray, sn: np.ndarray) -> BSplineCurve | None:
+    """pc o phi exactly, for phi piecewise linear through the nodes (tn, sn) (both increasing, every
+    knot of pc inside (sn_0, sn_-1) among the sn): one Bezier piece per node interval, C0 at the
+    nodes. None when the nodes leave pc's domain."""
     p = pc.degree
-    br, spans = to_bezier(pc.knots, p, pc.homogeneous())
-    poles = []
-    for s0, s1 in zip(sn[:-1], sn[1:], strict=True):
-        j = int(np.clip(np.searchsorted(br, 0.5 * (s0 + s1), side="right") - 1, 0, len(spans) - 1))
-        x0, x1 = br[j], br[j + 1]
-        H = curve_segment(spans[j], (s0 - x0) / (x1 - x0), (s1 - x0) / (x1 - x0))
-        poles.append(H[1:] if poles else H)
-    H = np.concatenate(poles)
+    lo, hi = pc.domain
+    if sn[0] < lo or sn[-1] > hi:
+        return None
+    breaks, segs = split_curve_at(pc.knots, p, pc.homogeneous(), sn)
+    inside = (breaks[:-1] >= sn[0]) & (breaks[1:] <= sn[-1])
+    segs = segs[inside]
+    if len(segs) != len(sn) - 1:  # a knot of pc between two nodes: not one piece per interval
+        return None
+    H = np.concatenate([segs[0], *(seg[1:] for seg in segs[1:])])
     knots = np.concatenate([[tn[0]] * (p + 1), np.repeat(tn[1:-1], p), [tn[-1]] * (p + 1)])
     if pc.rational:
         return BSplineCurve(p, knots, H[:, :-1] / H[:, -1:], H[:, -1].copy())
@@ -217,6 +219,8 @@ def _retime_one(fi: int, ce: Coedge, edge, surf, floor: float):
         return None
     tn, sn, _ = nodes
     new = _compose(pc, tn, sn)
+    if new is None:
+        return None
     tt = np.union1d(t, 0.5 * (tn[:-1] + tn[1:]))
     after = float(np.linalg.norm(surf.evaluate(new.evaluate(tt)) - edge.curve.evaluate(tt), axis=1).max())
     if after >= before:
