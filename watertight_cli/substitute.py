@@ -29,6 +29,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .core.approx import fit_curve, fit_points
@@ -162,7 +164,7 @@ class _Curves:
             return self.model.vertices[key[1]]
         if key not in self._corners:
             # the point of the curve the segments are cut from: C', or its per-span fit
-            h = self.segment(key[1], key[2], key[2])[0]
+            h = self._piece(key[1], key[2], key[2])[0]
             self._corners[key] = h[:3] / h[3] if h.shape[0] == 4 else h
         return self._corners[key]
 
@@ -221,6 +223,8 @@ class _Curves:
              for lo, hi, r, size in uses if r.shape[1] == 4), default=0.0)
         for key in [k for k in self._k if k[0] == e]:  # segments cut from the fits while costing
             del self._k[key]
+        for key in [k for k in self._corners if k[0] == "e" and k[1] == e]:  # and their corners
+            del self._corners[key]
         if cost < exact:
             self.fit_error[e] = max(f[1] for f in fits)
         else:
@@ -302,27 +306,51 @@ class _Curves:
         return None
 
     def segment(self, e: int, wa: float, wb: float) -> np.ndarray:
-        """The shared curve on [wa, wb] (reversed when wa > wb): (k+1, 3), or (k+1, 4) homogeneous."""
+        """The shared curve on [wa, wb] (reversed when wa > wb): (k+1, 3), or (k+1, 4) homogeneous.
+        Its ends are exactly the corner points there (``corner``): a piece that crosses a knot of
+        C, or is cut from another span than the corner, ends a hair off it, and setting the corner
+        afterwards would bend each patch's row differently at its own degree. The ends are moved
+        by a straight blend instead (in the homogeneous numerator for a rational K), once for
+        every patch that takes the piece."""
         key = self.key(e, wa, wb)
         K = self._k.get(key)
         if K is None:
             lo, hi = key[1], key[2]
-            if e in self._mid:
-                br, nets = self._mid[e]
-                j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(nets) - 1))
-                x0, x1 = br[j], br[j + 1]
-                if lo < x0 - 1e-9 * (x1 - x0) or hi > x1 + 1e-9 * (x1 - x0):
-                    self.straddles += 1
-                K = curve_segment(nets[j], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
-            elif e in self._fits:
-                br = self.spans(e)[0]
-                j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(br) - 2))
-                x0, x1 = br[j], br[j + 1]
-                K = curve_segment(self._fits[e][j][0], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
-            else:
-                K = self.exact(e, lo, hi)
+            K = self._piece(e, lo, hi)
+            if K.shape[0] > 1:
+                ends = K[[0, -1], :3] / K[[0, -1], 3:4] if K.shape[1] == 4 else K[[0, -1]]
+                want = np.array([self.corner(self.corner_key(e, w)) for w in (lo, hi)])
+                delta = want - ends
+                if delta.any():
+                    lam = np.linspace(0.0, 1.0, K.shape[0])[:, None]
+                    blend = (1.0 - lam) * delta[0] + lam * delta[1]
+                    K = K.copy()
+                    if K.shape[1] == 4:
+                        K[:, :3] += blend * K[:, 3:4]
+                        K[[0, -1], :3] = want * K[[0, -1], 3:4]
+                    else:
+                        K += blend
+                        K[[0, -1]] = want
             self._k[key] = K
         return K if wa <= wb else K[::-1]
+
+    def _piece(self, e: int, lo: float, hi: float) -> np.ndarray:
+        """The shared curve on [lo, hi] as cut from C', its fits or the midway curve."""
+        if e in self._mid:
+            br, nets = self._mid[e]
+            j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(nets) - 1))
+            x0, x1 = br[j], br[j + 1]
+            if lo < x0 - 1e-9 * (x1 - x0) or hi > x1 + 1e-9 * (x1 - x0):
+                self.straddles += 1
+            K = curve_segment(nets[j], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
+        elif e in self._fits:
+            br = self.spans(e)[0]
+            j = int(np.clip(np.searchsorted(br, 0.5 * (lo + hi), side="right") - 1, 0, len(br) - 2))
+            x0, x1 = br[j], br[j + 1]
+            K = curve_segment(self._fits[e][j][0], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
+        else:
+            K = self.exact(e, lo, hi)
+        return K
 
 
 def _weight_factor(kappa: np.ndarray, budget: int) -> np.ndarray:
@@ -341,12 +369,20 @@ def _divide(omega: np.ndarray, kappa: np.ndarray) -> np.ndarray | None:
     """g with kappa * g = omega (Bernstein coefficients, degree len(omega) - len(kappa)), or None when
     omega has no such factor. A row S(pc(w)) of a rational patch and a segment of a 3D curve that
     is the same rational curve in the same parameter differ by such a common factor; the row then
-    takes K * g, which has the row's own weights."""
+    takes K * g. The factor is fitted with its end values fixed (kappa * g has omega's end weights,
+    so the corners and the sides through them keep theirs); the division counts when the rest
+    matches within ``_DIVIDE_REL``."""
     d, k = len(omega) - 1, len(kappa) - 1
     if d < k:
         return None
     A = np.stack([product(kappa, e) for e in np.eye(d - k + 1)], axis=1)
-    g, *_ = np.linalg.lstsq(A, omega, rcond=None)
+    if d == k:
+        g = np.array([omega[0] / kappa[0]])
+    else:
+        g = np.zeros(d - k + 1)
+        g[0], g[-1] = omega[0] / kappa[0], omega[-1] / kappa[-1]
+        if d - k > 1:
+            g[1:-1], *_ = np.linalg.lstsq(A[:, 1:-1], omega - A[:, 0] * g[0] - A[:, -1] * g[-1], rcond=None)
     if np.abs(A @ g - omega).max() > _DIVIDE_REL * np.abs(omega).max():
         return None
     return g
@@ -543,9 +579,8 @@ def _put(H: np.ndarray, name: str, K: np.ndarray) -> None:
     if H.shape[-1] == 4 and d > 0:
         row = H[idx]
         g = _divide(row[:, 3], K[:, 3])
-        if g is not None:
-            Kg = product(K, g) if len(g) > 1 else K * g[0]
-            H[idx] = np.concatenate([Kg[:, :3] / Kg[:, 3:4] * row[:, 3:4], row[:, 3:4]], axis=1)
+        if g is not None:  # K itself, written with (nearly) the row's weights
+            H[idx] = product(K, g) if len(g) > 1 else K * g[0]
             return
     if K.shape[0] - 1 < d:
         K = elevate_curve(K, d - (K.shape[0] - 1))
@@ -619,6 +654,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
     users: dict[tuple, list[np.ndarray]] = {}
     corner_uses: dict[tuple, int] = {}
     used: dict[int, str] = {}
+    merges: dict[int, list[tuple[float, float]]] = {}
     for fr in result.faces:  # pass 1: what every side lies on, and the rows each segment goes into
         eps = fr.eps if fr.eps is not None else (0.0, 0.0)
         info = []
@@ -635,7 +671,8 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 lo, hi = sorted((ref.wa, ref.wb))
                 users.setdefault(ref.edge, []).append((lo, hi, row, size))
         infos.append(info)
-    snap = _snap_params(model, users, result.plan, tol)
+        _corner_merges(fr, info, merges)
+    snap = _snap_params(model, users, result.plan, tol, merges)
     for info in infos:
         for refs, _ in info:
             for ref in refs.values():
@@ -703,30 +740,41 @@ def _sampled_move(a: np.ndarray, a_rational: bool, b: np.ndarray, b_rational: bo
     return float(np.linalg.norm(pa - pb, axis=-1).max())
 
 
-def _snap_params(model: Model, users: dict, plan: dict, tol: Tolerances) -> dict[int, dict[float, float]]:
+def _snap_params(model: Model, users: dict, plan: dict, tol: Tolerances,
+                 merges: dict | None = None) -> dict[int, dict[float, float]]:
     """Per edge, side-end parameters that stand less than a sliver apart (in 3D, through the curve's
-    speed) mapped onto one value: the plan's, or the edge's end, where one is among them. Stage 1
-    can end two neighbouring cells' sides a sliver apart on the same edge (a plan cut next to a
-    slab line); one parameter makes them one corner."""
+    speed), or that a face's corner cluster joins (``merges``, see ``_corner_merges``), mapped onto
+    one value: the plan's, or the edge's end, where one is among them. Stage 1 can end two
+    neighbouring cells' sides a sliver apart on the same edge (a plan cut next to a slab line);
+    one parameter makes them one corner."""
     out: dict[int, dict[float, float]] = {}
     sliver = tol.sliver_rel * model.diagonal
+    merges = merges or {}
     for e, uses in users.items():
         edge = model.edges[e]
         anchors = set(float(x) for x in plan.get(e, ())) | {float(edge.first), float(edge.last)}
-        vals = np.array(sorted({float(w) for lo, hi, _, _ in uses for w in (lo, hi)} | anchors))
+        # cluster pairs join a hair apart along the edge, never across it (the two ends of a
+        # closed edge are one point in 3D and in uv but not one parameter)
+        pairs = [(a, b) for a, b in merges.get(e, []) if abs(a - b) < 0.25 * (edge.last - edge.first)]
+        if pairs:
+            ab = edge.curve.evaluate(np.array(pairs, dtype=float).reshape(-1))
+            near = np.linalg.norm(ab[0::2] - ab[1::2], axis=1) <= tol.approx_rel * model.diagonal
+            pairs = [pair for pair, ok in zip(pairs, near, strict=True) if ok]
+        vals = np.array(sorted({float(w) for lo, hi, _, _ in uses for w in (lo, hi)} | anchors
+                               | {float(w) for pair in pairs for w in pair}))
         pts = edge.curve.evaluate(vals)
-        close = np.linalg.norm(np.diff(pts, axis=0), axis=1) <= sliver
-        m: dict[float, float] = {}
-        group: list[float] = [float(vals[0])]
-        for w, joined in zip(vals[1:], close, strict=True):
-            if not joined:
-                rep = next((x for x in group if x in anchors), group[0])
-                m.update({x: rep for x in group})
-                group = []
-            group.append(float(w))
-        rep = next((x for x in group if x in anchors), group[0])
-        m.update({x: rep for x in group})
-        out[e] = m
+        close = np.flatnonzero(np.linalg.norm(np.diff(pts, axis=0), axis=1) <= sliver)
+        where = {float(w): n for n, w in enumerate(vals)}
+        rows = np.concatenate([close, [where[float(a)] for a, _ in pairs]]).astype(int)
+        cols = np.concatenate([close + 1, [where[float(b)] for _, b in pairs]]).astype(int)
+        graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(vals), len(vals)))
+        _, label = connected_components(graph, directed=False)
+        rep: dict[int, float] = {}
+        for w, lab in zip(vals, label, strict=True):  # increasing: an anchor, else the smallest
+            w = float(w)
+            if lab not in rep or (w in anchors and rep[lab] not in anchors):
+                rep[lab] = w
+        out[e] = {float(w): rep[lab] for w, lab in zip(vals, label, strict=True)}
     return out
 
 
@@ -799,20 +847,18 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     p.bound += moved
 
 
-def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution) -> dict:
-    """One point per corner of the face's decomposition: patch corners closer in uv than the face's
-    line thresholds (``FaceResult.eps``, where stage 1 merged slab lines) are one corner. Its value
-    is the shared curve's point where some patch put one there (the boundary), else the first
-    patch's. Every patch gets that value at that corner; returns (patch, corner) -> corner id."""
+def _corner_clusters(fr, info) -> tuple[list[tuple[int, tuple[int, int]]], np.ndarray]:
+    """The face's patch corners (patch, corner) and, per corner, the index of its cluster's
+    representative: corners closer in uv than the face's line thresholds (``FaceResult.eps``,
+    where stage 1 merged slab lines) are one corner. Greedy clusters around representatives (no
+    chaining: a run of close corners along a line must not merge corners that are far apart)."""
     keys = [(i, c) for i in range(len(fr.patches)) for c in ((0, 0), (1, 0), (0, 1), (1, 1))]
     if not keys:
-        return {}
+        return keys, np.zeros(0, dtype=int)
     uv = np.array([info[i][1][c] for i, c in keys])
     ueps, veps = fr.eps if fr.eps is not None else (0.0, 0.0)
     scale = np.array([max(ueps, 1e-12 * max(np.ptp(uv[:, 0]), 1e-300)),
                       max(veps, 1e-12 * max(np.ptp(uv[:, 1]), 1e-300))])
-    # greedy clusters around representatives (no chaining: a run of close corners along a line
-    # must not merge corners that are far apart)
     pts = uv / scale
     tree = cKDTree(pts)
     rep = np.full(len(keys), -1)
@@ -823,6 +869,35 @@ def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution) -> dict:
         for j in tree.query_ball_point(pts[n], 2.0, p=np.inf):
             if rep[j] < 0:
                 rep[j] = n
+    return keys, rep
+
+
+def _corner_merges(fr, info, merges: dict[int, list[tuple[float, float]]]) -> None:
+    """Edge parameters that one corner cluster of the face puts on the same edge (sides of cells a
+    sliver apart in uv, ending on the edge a hair apart): recorded in ``merges`` as pairs, so
+    ``_snap_params`` makes them one parameter and every patch there takes the same corner point.
+    Otherwise ``_unify_corners`` moves all but one onto that point and their rows leave the
+    shared curve (1.1e-6 on gmsh__Block.stp, more than a sliver in 3D)."""
+    keys, rep = _corner_clusters(fr, info)
+    pos = {k: n for n, k in enumerate(keys)}
+    first: dict[tuple[int, int], float] = {}
+    for i, (refs, _) in enumerate(info):
+        for name, ref in refs.items():
+            if ref is None or ref.pole:
+                continue
+            for w, c in zip((ref.wa, ref.wb), SIDES[name][2], strict=True):
+                w0 = first.setdefault((int(rep[pos[(i, c)]]), ref.edge), w)
+                if w0 != w:
+                    merges.setdefault(ref.edge, []).append((w0, w))
+
+
+def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution) -> dict:
+    """One point per corner of the face's decomposition (``_corner_clusters``). Its value is the
+    shared curve's point where some patch put one there (the boundary), else the first patch's.
+    Every patch gets that value at that corner; returns (patch, corner) -> corner id."""
+    keys, rep = _corner_clusters(fr, info)
+    if not keys:
+        return {}
 
     def find(x):
         return int(rep[x])
@@ -860,7 +935,10 @@ def _corner_xyz(H: np.ndarray, c: tuple[int, int], rational: bool) -> np.ndarray
 
 def _displace(H: np.ndarray, moves: dict, rational: bool) -> None:
     """Move corners (s, t) of the net H by ``moves[(s, t)]`` (3D) with the bilinear blend of the four
-    corner moves, written at H's degrees (in place; a rational net keeps its weights)."""
+    corner moves, written at H's degrees (in place; a rational net keeps its weights). A rational
+    net gets the blend of the moves times the corner weights in its homogeneous numerator: each
+    side then changes by (blend of w delta) / W(s), the same function at any degree of the side,
+    so two patches that share a side and move its corners alike still share it."""
     if not moves:
         return
     ls = np.linspace(0.0, 1.0, H.shape[0])
@@ -869,9 +947,10 @@ def _displace(H: np.ndarray, moves: dict, rational: bool) -> None:
     for (s, t), delta in moves.items():
         ws = ls if s == 1 else 1.0 - ls
         wt = lt if t == 1 else 1.0 - lt
-        d += np.outer(ws, wt)[..., None] * delta
+        scale = H[(0, -1)[s], (0, -1)[t], 3] if rational else 1.0
+        d += np.outer(ws, wt)[..., None] * (delta * scale)
     if rational:
-        H[..., :3] += d * H[..., 3:4]
+        H[..., :3] += d
     else:
         H += d
 
@@ -1024,8 +1103,12 @@ def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarra
     n = len(ts)
     if np.abs(delta).max() <= max(1e-15 * scale, atol) or n + 1 > max_degree:
         return None
-    # L in Bernstein form of degree n - 1 interpolating delta / (t (1 - t)); x (1 - x) = B_1^2 / 2
+    # L in Bernstein form of degree n - 1 interpolating delta / (t (1 - t)); x (1 - x) = B_1^2 / 2.
+    # A rational row is bent in its homogeneous coordinates: adding N(x) = x (1 - x) L(x) to the
+    # numerator moves the curve by N / W, so L interpolates delta W there (exact at the ts)
     vals = delta / (ts * (1 - ts))[:, None]
+    if rational:
+        vals = vals * h[:, 3:4]
     L = np.linalg.solve(basis(n - 1, ts), vals) if n > 1 else vals
     # x (1 - x) = B_1^2(x) / 2: Bernstein coefficients (0, 1/2, 0)
     D = product(np.array([[0.0], [0.5], [0.0]]), L) if n > 1 else np.outer([0.0, 0.5, 0.0], L[0])
@@ -1033,7 +1116,7 @@ def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarra
     base = elevate_curve(row, deg - (row.shape[0] - 1)) if deg > row.shape[0] - 1 else row.copy()
     D = elevate_curve(D, deg - (D.shape[0] - 1)) if deg > D.shape[0] - 1 else D
     if rational:
-        base[:, :3] += D * base[:, 3:4]  # approximately: exact at the weights' values
+        base[:, :3] += D
     else:
         base += D
     return base
@@ -1082,9 +1165,8 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
     d = own.shape[0] - 1
     if rational:
         g = _divide(own[:, 3], row[:, 3])
-        if g is not None:  # the same curve in the same parameter, written with this net's weights
-            Kg = product(row, g) if len(g) > 1 else row * g[0]
-            row = np.concatenate([Kg[:, :3] / Kg[:, 3:4] * own[:, 3:4], own[:, 3:4]], axis=1)
+        if g is not None:  # the same curve in the same parameter, written with (nearly) this net's weights
+            row = product(row, g) if len(g) > 1 else row * g[0]
     if row.shape[0] - 1 < d:
         row = elevate_curve(row, d - (row.shape[0] - 1))
     if np.array_equal(own, row):
@@ -1098,7 +1180,14 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
         fs.inner_mismatch += 1
         return
     H = H.copy()
-    H[SIDES[name][0]] = row
+    # the row's ends may differ from this net's corners (a T-side takes a piece of the bent long
+    # side): move them by the bilinear blend first, so the two sides through each corner change by
+    # a straight blend whatever their degrees, as in the neighbour that has the same corner
+    idx, _, corner_ids = SIDES[name]
+    ends = xyz[1][[0, -1]]
+    _displace(H, {c: x - _corner_xyz(H, c, rational) for c, x in zip(corner_ids, ends, strict=True)},
+              rational)
+    H[idx] = row
     moved, est = _change(old, H, rational)
     fs.moved = max(fs.moved, moved)
     fs.estimated = fs.estimated or est
