@@ -389,3 +389,29 @@ def test_segment_ends_on_its_corners():
             np.testing.assert_array_equal(ends, np.array(want))
             checked += 1
     assert checked
+
+
+def test_snap_joins_what_a_corner_cluster_joins_but_never_across_a_closed_edge():
+    """Side ends on one edge that a face's uv corner cluster merged become one parameter (1.1e-6
+    apart in 3D on gmsh__Block.stp, more than a sliver, so the distance rule alone kept both and
+    corner unification then pulled rows off the curve); the two ends of a closed edge, one point
+    in 3D, are never joined."""
+    from types import SimpleNamespace
+
+    from watertight_cli.substitute import _snap_params
+
+    def circle(w):
+        w = np.asarray(w, dtype=float)
+        return np.stack([np.cos(w), np.sin(w), 0.0 * w], axis=1)
+
+    edge = SimpleNamespace(first=0.0, last=2 * np.pi, curve=SimpleNamespace(evaluate=circle))
+    model = SimpleNamespace(edges=[edge], diagonal=10.0)
+    tol = Tolerances()
+    a, b = 1.0, 1.0 + 2e-6  # 2e-6 apart: more than a sliver (1e-7), less than the tolerance (1e-5)
+    uses = [(0.0, a, None, 1.0), (b, 2 * np.pi, None, 1.0), (0.5, 3.0, None, 1.0)]
+    plain = _snap_params(model, {0: uses}, {}, tol)[0]
+    assert plain[a] != plain[b]
+    joined = _snap_params(model, {0: uses}, {}, tol, {0: [(a, b), (0.0, 2 * np.pi), (0.5, 3.0)]})[0]
+    assert joined[a] == joined[b] == a
+    assert joined[0.0] == 0.0 and joined[2 * np.pi] == 2 * np.pi  # across the closed edge: no
+    assert joined[0.5] == 0.5 and joined[3.0] == 3.0  # far apart in 3D: no
