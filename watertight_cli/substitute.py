@@ -826,10 +826,16 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
             H[ii[s], ii[t]] = np.append(x * H[ii[s], ii[t], 3], H[ii[s], ii[t], 3])
         else:
             H[ii[s], ii[t]] = x
-    # a side whose two corners are one point (a pole, a collapsed rung) stays one point
+    # a side whose two corners are one point (a pole, a collapsed rung) stays one point; a rational
+    # side keeps its weights (they shape the surface beside the pole and the sides through its
+    # ends: copying the corner's weight along it moved marsCapsule's rungs by 0.013)
     for name, (idx, _, (c0, c1)) in SIDES.items():
         if c0 in corners and corners.get(c1) == corners[c0] and name not in rows:
-            H[idx] = H[ii[c0[0]], ii[c0[1]]]
+            if rational:
+                x = curves.corner(corners[c0])
+                H[idx + (slice(0, 3),)] = x * H[idx + (slice(3, 4),)]
+            else:
+                H[idx] = H[ii[c0[0]], ii[c0[1]]]
     if rational and not np.allclose(old[..., 3], H[..., 3], rtol=1e-12, atol=0.0):
         H = _refit(old, H)
         size = float(np.ptp(_cartesian(old, True).reshape(-1, 3), axis=0).max())
