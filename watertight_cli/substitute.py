@@ -47,6 +47,7 @@ from .core.bspline import to_bezier
 from .core.reduce import reduce_curve
 from .model import Model
 from .tolerances import Tolerances
+from .topology import JOIN_REL
 from .untrim import RUNG_SLIDE, Patch, UntrimResult, _eval, _t_at_u, cell_map
 
 __all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
@@ -61,6 +62,7 @@ SIDES = {
 _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
 _BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
+_RUNG_FIT_REL = 0.1  # a rung's fit of K at its own parameter: within this x watertight_rel x diagonal
 _T_MERGE = 1e-6  # T-vertex parameters on a long side this close, at one 3D point, are one vertex
 _REFIT_GROWTH = 4.0  # a refitted net spanning more than this times the old one is refused
 _ELEVATE = 25  # elevation used to tighten control-net bounds of a patch's change
@@ -78,6 +80,8 @@ class FaceSubstitution:
     inner_reparam: int = 0  # shared inner sides left as they are: same line, other parameterization
     inner_t: int = 0  # inner sides made subdivisions of a neighbour's longer side (T-vertices)
     inner_mismatch: int = 0  # sides paired by their corners but further apart than a copy may move
+    rungs_fitted: int = 0  # rungs on an edge that took its curve at their own parameter (a fit)
+    rungs_unshared: int = 0  # such rungs whose fit needed more than the degree budget (left as they are)
     # largest distance of a patch from its stage-1 patch at the same (s, t), sampled on a grid (the
     # measured counterpart of ``moved``, which sums certified bounds of the successive steps)
     moved_sampled: float = 0.0
@@ -108,6 +112,9 @@ class _Ref:
     wa: float
     wb: float
     pole: bool = False
+    # a rung along an iso piece whose edge parameter is not affine along the rung: (piece H, w0,
+    # w1, v at the rung's start, v at its end); the rung then takes K at that parameter (``_rung_row``)
+    along: tuple | None = None
 
 
 class _Curves:
@@ -416,8 +423,9 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], le
 
     The rung runs linearly in v; the edge's parameter may not. Taking the curve then slides each
     point of the row along the side by up to 2 x (v's departure from affine on the piece) x the
-    side's speed (``length`` / its v extent, model units); that is allowed up to ``slide``, and
-    the rung is left unshared beyond it (the move is measured and bounded like any other)."""
+    side's speed (``length`` / its v extent, model units); that is allowed up to ``slide`` (the
+    move is measured and bounded like any other). Beyond it the reference carries the piece
+    (``_Ref.along``), and the rung takes the curve at its own parameter (``_rung_row``)."""
     for p in pieces:
         uv = p.H[[0, -1], :2] / p.H[[0, -1], 2:3]
         if max(abs(a[0] - uv[0, 0]), abs(b[0] - uv[0, 0]), abs(a[0] - uv[1, 0])) > 2 * eps[0]:
@@ -427,13 +435,55 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], le
             continue
         if p.degenerate:
             return _Ref(p.edge, p.w0, p.w1, pole=True)
+        along = None
         if p.H.shape[0] > 2 and not _affine_enough(p.H, abs(b[1] - a[1]), eps[1], length, slide):
-            return None
+            along = (p.H, p.w0, p.w1, float(a[1]), float(b[1]))
         ws = [p.w0 + _t_at_u(p.H, float(x[1]), axis=1) * (p.w1 - p.w0) for x in (a, b)]
         # snap to the piece's ends, so corners at plan parameters get the plan's floats
         ws = [p.w0 if abs(x[1] - uv[0, 1]) <= eps[1] else p.w1 if abs(x[1] - uv[1, 1]) <= eps[1] else w
               for x, w in zip((a, b), ws, strict=True)]
-        return _Ref(p.edge, ws[0], ws[1])
+        return _Ref(p.edge, ws[0], ws[1], along=along)
+    return None
+
+
+def _piece_t_at_v(H: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Parameters of a homogeneous uv piece monotone in v where it reaches the values ``v``
+    (vectorized: a dense table, then Newton steps)."""
+    grid = np.linspace(0.0, 1.0, 257)
+    table = _eval(H, grid)[:, 1]
+    order = np.argsort(table)
+    t = np.interp(v, table[order], grid[order])
+    h = 1e-7
+    for _ in range(4):
+        f = _eval(H, t)[:, 1] - v
+        d = (_eval(H, np.clip(t + h, 0.0, 1.0))[:, 1] - _eval(H, np.clip(t - h, 0.0, 1.0))[:, 1])
+        d /= np.clip(t + h, 0.0, 1.0) - np.clip(t - h, 0.0, 1.0)
+        t = np.clip(t - np.where(d != 0.0, f / np.where(d != 0.0, d, 1.0), 0.0), 0.0, 1.0)
+    return t
+
+
+def _rung_row(K: np.ndarray, along: tuple, max_degree: int, target: float) -> np.ndarray | None:
+    """The row of a rung that lies on an iso piece of an edge whose parameter is not affine along
+    the rung: K at the rung's own parameter, K(a(t)) with a(t) the edge parameter where the rung
+    (linear in v) reaches v(t), normalized to [0, 1]. A polynomial of the lowest degree (up to
+    ``max_degree``) whose least-squares fit with the ends held is within ``target`` of it; None
+    past the budget. The rung then lies on the shared curve to the fit's error instead of staying
+    on the face's own boundary (the input's gap away) or sliding along it."""
+    H, w0, w1, va, vb = along
+    n = 8 * (max_degree + 1)
+    tc = 0.5 - 0.5 * np.cos(np.pi * np.arange(n) / (n - 1))
+    te = np.linspace(0.0, 1.0, 201)
+    t = np.concatenate([tc, te])
+    w = w0 + _piece_t_at_v(H, va + t * (vb - va)) * (w1 - w0)
+    if w[n - 1] == w[0]:
+        return None
+    a = np.clip((w - w[0]) / (w[n - 1] - w[0]), 0.0, 1.0)
+    pts = rational_curve_eval(_homog(K), a)
+    pc, pe = pts[:n], pts[n:]
+    for q in range(max(1, K.shape[0] - 1), max_degree + 1):
+        F = fit_points(tc, pc, q)
+        if float(np.linalg.norm(basis(q, te) @ F - pe, axis=1).max()) <= target:
+            return F
     return None
 
 
@@ -671,7 +721,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 lo, hi = sorted((ref.wa, ref.wb))
                 users.setdefault(ref.edge, []).append((lo, hi, row, size))
         infos.append(info)
-        _corner_merges(fr, info, merges)
+        _corner_merges(fr, info, merges, model, JOIN_REL * model.diagonal)
     snap = _snap_params(model, users, result.plan, tol, merges)
     for info in infos:
         for refs, _ in info:
@@ -701,11 +751,19 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                     corners[c0] = corners[c1] = ("v", model.edges[ref.edge].vertices[0])
                     used[ref.edge] = "pole"
                     continue
+                K = curves.segment(ref.edge, ref.wa, ref.wb)
+                if ref.along is not None:
+                    fit_tol = _RUNG_FIT_REL * tol.watertight_rel * model.diagonal
+                    K = _rung_row(K, ref.along, tol.max_degree, fit_tol)
+                    if K is None:
+                        fs.rungs_unshared += 1
+                        continue
+                    fs.rungs_fitted += 1
                 ka, kb = curves.corner_key(ref.edge, ref.wa), curves.corner_key(ref.edge, ref.wb)
                 for k in (ka, kb):
                     if k[0] == "e":
                         corner_uses[k] = corner_uses.get(k, 0) + 1
-                rows[name] = curves.segment(ref.edge, ref.wa, ref.wb)
+                rows[name] = K
                 corners[c0], corners[c1] = ka, kb
                 used[ref.edge] = ("midway between the faces" if ref.edge in curves.mid_error
                                   else "3d curve, polynomial fit" if ref.edge in curves.fit_error
@@ -715,7 +773,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 _apply(p, rows, corners, curves, fs, tol)
                 for c, key in corners.items():
                     moved[(pi, c)] = curves.corner(key)
-        labels = _unify_corners(fr, info, moved, fs)
+        labels = _unify_corners(fr, info, moved, fs, JOIN_REL * model.diagonal)
         _share_inner(fr, info, labels, fs, tol, model.diagonal)
         if progress is not None:
             progress(1)
@@ -744,7 +802,7 @@ def _snap_params(model: Model, users: dict, plan: dict, tol: Tolerances,
                  merges: dict | None = None) -> dict[int, dict[float, float]]:
     """Per edge, side-end parameters that stand less than a sliver apart (in 3D, through the curve's
     speed), or that a face's corner cluster joins (``merges``, see ``_corner_merges``), mapped onto
-    one value: the plan's, or the edge's end, where one is among them. Stage 1 can end two
+    one value: the edge's end (its vertex), else the plan's, where one is among them. Stage 1 can end two
     neighbouring cells' sides a sliver apart on the same edge (a plan cut next to a slab line);
     one parameter makes them one corner."""
     out: dict[int, dict[float, float]] = {}
@@ -770,9 +828,11 @@ def _snap_params(model: Model, users: dict, plan: dict, tol: Tolerances,
         graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(vals), len(vals)))
         _, label = connected_components(graph, directed=False)
         rep: dict[int, float] = {}
-        for w, lab in zip(vals, label, strict=True):  # increasing: an anchor, else the smallest
-            w = float(w)
-            if lab not in rep or (w in anchors and rep[lab] not in anchors):
+        ends = {float(edge.first), float(edge.last)}
+        rank = {float(w): 0 if float(w) in ends else 1 if float(w) in anchors else 2 for w in vals}
+        for w, lab in zip(vals, label, strict=True):  # increasing: an end (its vertex), a plan
+            w = float(w)  # parameter, else the smallest
+            if lab not in rep or rank[w] < rank[rep[lab]]:
                 rep[lab] = w
         out[e] = {float(w): rep[lab] for w, lab in zip(vals, label, strict=True)}
     return out
@@ -853,11 +913,14 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     p.bound += moved
 
 
-def _corner_clusters(fr, info) -> tuple[list[tuple[int, tuple[int, int]]], np.ndarray]:
+def _corner_clusters(fr, info, eps3: float = 0.0) -> tuple[list[tuple[int, tuple[int, int]]], np.ndarray]:
     """The face's patch corners (patch, corner) and, per corner, the index of its cluster's
     representative: corners closer in uv than the face's line thresholds (``FaceResult.eps``,
-    where stage 1 merged slab lines) are one corner. Greedy clusters around representatives (no
-    chaining: a run of close corners along a line must not merge corners that are far apart)."""
+    where stage 1 merged slab lines) are one corner; greedy clusters around representatives (no
+    chaining: a run of close corners along a line must not merge corners that are far apart).
+    With ``eps3``, corners closer than that in 3D join too (chained, as the B-rep's vertices are:
+    ``topology.JOIN_REL``): a cell thinner than the joining tolerance is dropped as flat when the
+    B-rep is built, so the sides on both sides of it must be one row."""
     keys = [(i, c) for i in range(len(fr.patches)) for c in ((0, 0), (1, 0), (0, 1), (1, 1))]
     if not keys:
         return keys, np.zeros(0, dtype=int)
@@ -875,33 +938,64 @@ def _corner_clusters(fr, info) -> tuple[list[tuple[int, tuple[int, int]]], np.nd
         for j in tree.query_ball_point(pts[n], 2.0, p=np.inf):
             if rep[j] < 0:
                 rep[j] = n
+    if eps3 > 0.0:
+        xyz = np.array([_corner_xyz(fr.patches[i].ctrl, c, fr.patches[i].rational) for i, c in keys])
+        pairs = cKDTree(xyz).query_pairs(eps3, output_type="ndarray")
+        if len(pairs):
+            n = len(keys)
+            rows = np.concatenate([np.arange(n), pairs[:, 0]])
+            cols = np.concatenate([rep, pairs[:, 1]])
+            _, label = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)),
+                                            directed=False)
+            first = np.full(label.max() + 1, n)
+            np.minimum.at(first, label, np.arange(n))
+            rep = first[label]
     return keys, rep
 
 
-def _corner_merges(fr, info, merges: dict[int, list[tuple[float, float]]]) -> None:
+def _corner_merges(fr, info, merges: dict[int, list[tuple[float, float]]], model: Model,
+                   eps3: float = 0.0) -> None:
     """Edge parameters that one corner cluster of the face puts on the same edge (sides of cells a
-    sliver apart in uv, ending on the edge a hair apart): recorded in ``merges`` as pairs, so
-    ``_snap_params`` makes them one parameter and every patch there takes the same corner point.
-    Otherwise ``_unify_corners`` moves all but one onto that point and their rows leave the
-    shared curve (1.1e-6 on gmsh__Block.stp, more than a sliver in 3D)."""
-    keys, rep = _corner_clusters(fr, info)
+    sliver apart in uv, ending on the edge a hair apart), or a parameter near an edge's end whose
+    cluster also holds that end's vertex: recorded in ``merges`` as pairs, so ``_snap_params``
+    makes them one parameter and every patch there takes the same corner point. Otherwise
+    ``_unify_corners`` moves all but one onto that point and their rows leave the shared curve
+    (1.1e-6 on gmsh__Block.stp, 1.8e-6 on trj8: more than a sliver in 3D)."""
+    keys, rep = _corner_clusters(fr, info, eps3)
     pos = {k: n for n, k in enumerate(keys)}
-    first: dict[tuple[int, int], float] = {}
+    ends = []  # (cluster, edge, w)
+    vertices: dict[int, set[int]] = {}
     for i, (refs, _) in enumerate(info):
         for name, ref in refs.items():
             if ref is None or ref.pole:
                 continue
+            edge = model.edges[ref.edge]
+            near = 1e-11 * max(edge.last - edge.first, 1e-300)
             for w, c in zip((ref.wa, ref.wb), SIDES[name][2], strict=True):
-                w0 = first.setdefault((int(rep[pos[(i, c)]]), ref.edge), w)
-                if w0 != w:
-                    merges.setdefault(ref.edge, []).append((w0, w))
+                root = int(rep[pos[(i, c)]])
+                ends.append((root, ref.edge, w))
+                if abs(w - edge.first) <= near:
+                    vertices.setdefault(root, set()).add(edge.vertices[0])
+                elif abs(w - edge.last) <= near:
+                    vertices.setdefault(root, set()).add(edge.vertices[1])
+    first: dict[tuple[int, int], float] = {}
+    for root, e, w in ends:
+        edge = model.edges[e]
+        at = [x for x, v in ((edge.first, edge.vertices[0]), (edge.last, edge.vertices[1]))
+              if v in vertices.get(root, ())]
+        if at:  # the cluster holds a vertex of this edge: the nearer end of the edge
+            w0 = min(at, key=lambda x: abs(x - w))
+            first.setdefault((root, e), w0)
+        w0 = first.setdefault((root, e), w)
+        if w0 != w:
+            merges.setdefault(e, []).append((w0, w))
 
 
-def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution) -> dict:
+def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution, eps3: float = 0.0) -> dict:
     """One point per corner of the face's decomposition (``_corner_clusters``). Its value is the
     shared curve's point where some patch put one there (the boundary), else the first patch's.
     Every patch gets that value at that corner; returns (patch, corner) -> corner id."""
-    keys, rep = _corner_clusters(fr, info)
+    keys, rep = _corner_clusters(fr, info, eps3)
     if not keys:
         return {}
 
@@ -997,7 +1091,8 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
             flip = ends[k] != ends[m]
             if flip:
                 row = row[::-1]
-            if not _same_parameter(src, items[m][1], patches[items[k][0]], items[k][1], flip, fr.eps):
+            if not _same_parameter(src, items[m][1], patches[items[k][0]], items[k][1], flip, fr.eps,
+                                   JOIN_REL * diagonal):
                 # the same line in another parameterization (a side that follows an edge's
                 # parameter): copying would slide the patch along it; both stay on the line
                 fs.inner_reparam += 1
@@ -1013,15 +1108,24 @@ def _side_uv(p: Patch, name: str, g: np.ndarray) -> np.ndarray:
     return cell_map(p, np.array([0.0 if name == "left" else 1.0]), g)[0]
 
 
-def _same_parameter(a: Patch, an: str, b: Patch, bn: str, flip: bool, eps) -> bool:
+def _same_parameter(a: Patch, an: str, b: Patch, bn: str, flip: bool, eps, eps3: float = 0.0) -> bool:
     """Two sides on one uv line run through it at the same parameter (so copying a row moves the
-    patch only by the rows' difference, not along the line)."""
+    patch only by the rows' difference, not along the line); or, with ``eps3``, two sides whose
+    points at the same parameter are that close in 3D (the two sides of a cell thinner than the
+    joining tolerance, which the B-rep drops)."""
     g = np.linspace(0.0, 1.0, 7)
     ua, ub = _side_uv(a, an, g), _side_uv(b, bn, g)
     if flip:
         ub = ub[::-1]
     e = np.array(eps if eps is not None else (0.0, 0.0)) * 4.0 + 1e-12
-    return bool(np.all(np.abs(ua - ub) <= e))
+    if np.all(np.abs(ua - ub) <= e):
+        return True
+    if eps3 <= 0.0:
+        return False
+    pa, pb = (rational_curve_eval(_homog(_row(p.ctrl, n)), g) for p, n in ((a, an), (b, bn)))
+    if flip:
+        pb = pb[::-1]
+    return bool(np.linalg.norm(pa - pb, axis=1).max() <= eps3)
 
 
 def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubstitution, tol: Tolerances,

@@ -44,11 +44,15 @@ SIDE_ROWS = {
     "left": ((0, slice(None)), (0, 0), (0, 1)),
 }
 SIDE_NAMES = tuple(SIDE_ROWS)
+#: joining tolerance relative to the diagonal: corners this close are one vertex (shared boundaries
+#: coincide to rounding, and no patch side is shorter than a sliver, 1e-8 x diagonal,
+#: ``Tolerances.sliver_rel``); stage 2 makes such corners one point (``substitute``)
+JOIN_REL = 1e-9
 _CORNERS = ((0, 0), (1, 0), (1, 1), (0, 1))
 _COLLAPSED_REL = 1e-12  # a side whose control points stay this close (x patch size) is one point
 _MERGE = 4.0  # a vertex this close to a side's end (x eps) is that end
 _MAP_DEGREE = 5  # degree of spline parameter maps
-_MAP_REL = 0.01  # a parameter map is refined while it leaves more than this x eps
+_MAP_REL = 1e-4  # a parameter map is refined while it leaves more than this x eps (I2 asks 1e-3 eps)
 _CHECK = np.array([0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875])  # where parameter maps are measured
 
 
@@ -513,26 +517,31 @@ def _pairs(segs: list[tuple], rows, eps: float) -> list[tuple[tuple[int, ...], M
             if m is not None:
                 ok[(a, b)] = 2 if segs[a][0] != segs[b][0] else 1  # a fold of one patch scores less
                 members[(a, b)] = m
-    best: tuple[int, list] = (-1, [])
+    # the most pairs, and among those the closest: where a boundary curve runs into a straight
+    # side tangentially (a u-extremum on a slab line), a vertex near the touching point lies within
+    # eps of both, and the pieces beside it coincide within eps with the wrong partner as well
+    # (Block, trj8: 5e-8 and 8e-8 against rounding for the right one)
+    best: tuple[tuple[int, float], list] = ((-1, 0.0), [])
 
-    def search(free: list[int], chosen: list, score: int) -> None:
+    def search(free: list[int], chosen: list, score: int, dev: float) -> None:
         nonlocal best
-        if score > best[0]:
-            best = (score, list(chosen))
+        if (score, -dev) > best[0]:
+            best = ((score, -dev), list(chosen))
         if not free or len(free) < 2:
             return
         a, rest = free[0], free[1:]
         for b in rest:
             if (a, b) in ok:
-                search([x for x in rest if x != b], chosen + [(a, b)], score + ok[(a, b)])
-        search(rest, chosen, score)
+                search([x for x in rest if x != b], chosen + [(a, b)], score + ok[(a, b)],
+                       dev + members[(a, b)].deviation)
+        search(rest, chosen, score, dev)
 
     if n <= 8:
-        search(list(range(n)), [], 0)
+        search(list(range(n)), [], 0, 0.0)
         paired = best[1]
     else:  # greedy
         paired, used = [], set()
-        for (a, b), _ in sorted(ok.items(), key=lambda kv: -kv[1]):
+        for (a, b), _ in sorted(ok.items(), key=lambda kv: (-kv[1], members[kv[0]].deviation)):
             if a not in used and b not in used:
                 paired.append((a, b))
                 used.update((a, b))

@@ -21,11 +21,8 @@ from OCP.TopExp import TopExp_Explorer
 from OCP.TopoDS import TopoDS_Compound, TopoDS_Shape, TopoDS_Shell
 
 from ..errors import KernelError
+from ..topology import JOIN_REL
 from .extract import indexed
-
-#: joining tolerance relative to the diagonal: shared boundaries coincide to rounding, and no patch
-#: side is shorter than a sliver (1e-8 x diagonal, ``Tolerances.sliver_rel``)
-JOIN_REL = 1e-9
 
 
 def input_groups(shape: TopoDS_Shape) -> list[tuple[list[int], bool]]:
