@@ -913,14 +913,17 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     p.bound += moved
 
 
-def _corner_clusters(fr, info, eps3: float = 0.0) -> tuple[list[tuple[int, tuple[int, int]]], np.ndarray]:
+def _corner_clusters(fr, info, eps3: float = 0.0, fixed: dict | None = None
+                     ) -> tuple[list[tuple[int, tuple[int, int]]], np.ndarray]:
     """The face's patch corners (patch, corner) and, per corner, the index of its cluster's
     representative: corners closer in uv than the face's line thresholds (``FaceResult.eps``,
     where stage 1 merged slab lines) are one corner; greedy clusters around representatives (no
     chaining: a run of close corners along a line must not merge corners that are far apart).
-    With ``eps3``, corners closer than that in 3D join too (chained, as the B-rep's vertices are:
-    ``topology.JOIN_REL``): a cell thinner than the joining tolerance is dropped as flat when the
-    B-rep is built, so the sides on both sides of it must be one row."""
+    With ``eps3``, corners closer than that in 3D join too, closest first (as the B-rep's
+    vertices do, ``topology.JOIN_REL``): a cell thinner than the joining tolerance is dropped as
+    flat when the B-rep is built, so the sides on both sides of it must be one row. Two clusters
+    that hold corners ``fixed`` at different points (on shared curves) stay apart: moving either
+    would take its row off its curve (fusee: a wedge cell whose short side is 9e-8 long)."""
     keys = [(i, c) for i in range(len(fr.patches)) for c in ((0, 0), (1, 0), (0, 1), (1, 1))]
     if not keys:
         return keys, np.zeros(0, dtype=int)
@@ -938,19 +941,37 @@ def _corner_clusters(fr, info, eps3: float = 0.0) -> tuple[list[tuple[int, tuple
         for j in tree.query_ball_point(pts[n], 2.0, p=np.inf):
             if rep[j] < 0:
                 rep[j] = n
-    if eps3 > 0.0:
-        xyz = np.array([_corner_xyz(fr.patches[i].ctrl, c, fr.patches[i].rational) for i, c in keys])
-        pairs = cKDTree(xyz).query_pairs(eps3, output_type="ndarray")
-        if len(pairs):
-            n = len(keys)
-            rows = np.concatenate([np.arange(n), pairs[:, 0]])
-            cols = np.concatenate([rep, pairs[:, 1]])
-            _, label = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)),
-                                            directed=False)
-            first = np.full(label.max() + 1, n)
-            np.minimum.at(first, label, np.arange(n))
-            rep = first[label]
-    return keys, rep
+    if eps3 <= 0.0:
+        return keys, rep
+    xyz = np.array([_corner_xyz(fr.patches[i].ctrl, c, fr.patches[i].rational) for i, c in keys])
+    pairs = cKDTree(xyz).query_pairs(eps3, output_type="ndarray")
+    if not len(pairs):
+        return keys, rep
+    parent = rep.copy()
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = int(parent[x])
+        return x
+
+    value: dict[int, np.ndarray] = {}
+    for n, k in enumerate(keys):
+        if fixed and k in fixed:
+            value.setdefault(find(n), fixed[k])
+    order = np.argsort(np.linalg.norm(xyz[pairs[:, 0]] - xyz[pairs[:, 1]], axis=1), kind="stable")
+    for a, b in pairs[order]:
+        ra, rb = find(int(a)), find(int(b))
+        if ra == rb:
+            continue
+        va, vb = value.get(ra), value.get(rb)
+        if va is not None and vb is not None and not np.array_equal(va, vb):
+            continue
+        lo, hi = min(ra, rb), max(ra, rb)
+        parent[hi] = lo
+        if va is not None or vb is not None:
+            value[lo] = va if va is not None else vb
+    return keys, np.array([find(n) for n in range(len(keys))])
 
 
 def _corner_merges(fr, info, merges: dict[int, list[tuple[float, float]]], model: Model,
@@ -994,8 +1015,9 @@ def _corner_merges(fr, info, merges: dict[int, list[tuple[float, float]]], model
 def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution, eps3: float = 0.0) -> dict:
     """One point per corner of the face's decomposition (``_corner_clusters``). Its value is the
     shared curve's point where some patch put one there (the boundary), else the first patch's.
-    Every patch gets that value at that corner; returns (patch, corner) -> corner id."""
-    keys, rep = _corner_clusters(fr, info, eps3)
+    Every patch gets that value at that corner, except corners that a patch put on a shared curve
+    (they keep theirs); returns (patch, corner) -> corner id."""
+    keys, rep = _corner_clusters(fr, info, eps3, moved)
     if not keys:
         return {}
 
@@ -1013,7 +1035,9 @@ def _unify_corners(fr, info, moved: dict, fs: FaceSubstitution, eps3: float = 0.
         labels[(i, c)] = root
         p = fr.patches[i]
         cur = _corner_xyz(p.ctrl, c, p.rational)
-        x = value.setdefault(root, cur.copy())
+        # a corner put on a shared curve stays there, also where its cluster holds another such
+        # corner (two boundary curves a hair apart: a wedge cell whose short side is 9e-8 long)
+        x = moved[(i, c)] if (i, c) in moved else value.setdefault(root, cur.copy())
         if not np.array_equal(cur, x):
             moves.setdefault(i, {})[c] = x - cur
     for i, mv in moves.items():
