@@ -1101,11 +1101,14 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
             by_ends.setdefault((min(a, b), max(a, b)), []).append(k)
     patches = fr.patches
     lonely = []
+    partners: dict[int, list[tuple[int, bool]]] = {}  # item -> the others with its two corners
     for ks in by_ends.values():
         owners = {items[k][0] for k in ks}
         if len(owners) < 2:
             lonely.extend(ks)  # a side with a T-vertex on it, or one of the sides that meet there
             continue
+        for k in ks:
+            partners[k] = [(j, ends[j] != ends[k]) for j in ks if j != k]
         m = ks[0]
         src = patches[items[m][0]]
         for k in ks[1:]:
@@ -1123,7 +1126,7 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
                 continue
             _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal, src.factors)
             fs.inner_shared += 1
-    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal)
+    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners)
 
 
 def _side_uv(p: Patch, name: str, g: np.ndarray) -> np.ndarray:
@@ -1153,32 +1156,42 @@ def _same_parameter(a: Patch, an: str, b: Patch, bn: str, flip: bool, eps, eps3:
 
 
 def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubstitution, tol: Tolerances,
-                   diagonal: float) -> None:
+                   diagonal: float, partners: dict | None = None) -> None:
     """Sides that meet a longer side of a neighbour at a T-vertex become subdivisions of that side,
-    so the two stay on one curve (its corners at the T-vertex are computed once)."""
+    so the two stay on one curve (its corners at the T-vertex are computed once). The long side
+    is a lonely one where there is one; else a side shared whole (``partners``: across a cell
+    thinner than the joining tolerance, whose two sides were made one row), whose partners then
+    take the long side's row too when it is bent."""
+    partners = partners or {}
     if not lonely:
         return
-    seg = fwd[lonely]
-    a, b = seg[:, :2], seg[:, 2:]
+    # containers: any inner side (a long side may also be shared whole, e.g. across a thin cell
+    # whose two sides were joined: ec_turbine), shorts: the lonely ones
+    every = list(range(len(items)))
+    a, b = fwd[:, :2], fwd[:, 2:]
     length = np.linalg.norm(b - a, axis=1)
+    owner = np.array([it[0] for it in items])
+    lonely_set = set(lonely)
     eps = 1e-7
     used = set()
     groups: dict[int, list] = {}
-    for n, k in enumerate(lonely):
-        # containers: longer lonely sides of another patch whose segment holds both ends of k
+    for k in lonely:
+        # containers: longer sides of another patch whose segment holds both ends of k
         d = b - a
         with np.errstate(invalid="ignore", divide="ignore"):
-            ta = np.einsum("ij,ij->i", a[n] - a, d) / np.maximum(length ** 2, 1e-300)
-            tb = np.einsum("ij,ij->i", b[n] - a, d) / np.maximum(length ** 2, 1e-300)
-        da = np.linalg.norm(a + ta[:, None] * d - a[n], axis=1)
-        db = np.linalg.norm(a + tb[:, None] * d - b[n], axis=1)
-        ok = ((length > length[n] * (1 + 1e-12)) & (da <= eps) & (db <= eps)
+            ta = np.einsum("ij,ij->i", a[k] - a, d) / np.maximum(length ** 2, 1e-300)
+            tb = np.einsum("ij,ij->i", b[k] - a, d) / np.maximum(length ** 2, 1e-300)
+        da = np.linalg.norm(a + ta[:, None] * d - a[k], axis=1)
+        db = np.linalg.norm(a + tb[:, None] * d - b[k], axis=1)
+        ok = ((length > length[k] * (1 + 1e-12)) & (da <= eps) & (db <= eps)
               & (np.minimum(ta, tb) >= -eps) & (np.maximum(ta, tb) <= 1 + eps))
-        ok &= np.array([items[j][0] != items[k][0] for j in lonely])
+        ok &= owner != items[k][0]
         cands = np.flatnonzero(ok)
         if not len(cands):
             continue
-        j = lonely[int(cands[np.argmax(length[cands])])]
+        alone = [c for c in cands if c in lonely_set]
+        cands = np.array(alone) if alone else cands
+        j = every[int(cands[np.argmax(length[cands])])]
         li, lname = items[j][0], items[j][1]
         long_p = fr.patches[li]
         ua, ub = _side_param(long_p, lname, items[k][2]), _side_param(long_p, lname, items[k][3])
@@ -1215,6 +1228,9 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
             if bent is not None:
                 _copy_row(long_p, lname, bent, long_p.rational, fs, tol, diagonal, long_p.factors)
                 row = _row(long_p.ctrl, lname)
+                for o, flip in partners.get(j, ()):
+                    _copy_row(fr.patches[items[o][0]], items[o][1], row[::-1] if flip else row,
+                              long_p.rational, fs, tol, diagonal, long_p.factors)
         for k, ua, ub in shorts:
             _copy_row(fr.patches[items[k][0]], items[k][1], curve_segment(row, ua, ub), long_p.rational,
                       fs, tol, diagonal, long_p.factors)
