@@ -20,8 +20,8 @@ speed; its map is then the rational linear (Moebius) one, still a straight segme
 through the midpoint. The deviation that remains is measured and returned, so the builder can
 give the edge an honest tolerance.
 
-A side whose control points all coincide (a pole, a collapsed rung) is *degenerate*: it keeps one
-vertex and no 3D curve.
+A side whose control points all coincide (a pole, a collapsed rung), or stay within the joining
+tolerance, is *degenerate*: it keeps one vertex and no 3D curve.
 """
 
 from __future__ import annotations
@@ -269,7 +269,11 @@ def _connect(nets: list[tuple[np.ndarray, bool]], eps: float, drop: set, state: 
         rows.append(r)
         for k, name in enumerate(SIDE_NAMES):
             p = r[name][:, :3] / r[name][:, 3:4]
-            collapsed[i, k] = bool(np.max(np.linalg.norm(p - p[0], axis=1)) <= _COLLAPSED_REL * scale)
+            # one point: to rounding, or within the joining tolerance (its two ends are then one
+            # vertex, and a loop edge shorter than that pairs with nothing: bug33398 had 25 such
+            # sides of 2e-10 where two shared curves end a hair apart at one corner)
+            spread = float(np.max(np.linalg.norm(p - p[0], axis=1)))
+            collapsed[i, k] = spread <= max(_COLLAPSED_REL * scale, eps)
 
     side_corners = {"bottom": (0, 1), "right": (1, 2), "top": (3, 2), "left": (0, 3)}
     live = [(i, name) for i in range(P) for k, name in enumerate(SIDE_NAMES) if not collapsed[i, k]]
@@ -362,9 +366,13 @@ def _assemble(P, eps, drop, V, vtol, cid, ends, rows, collapsed, side_corners, p
 
     V, vtol = _unpinch(edges, wires, V, vtol)
 
-    # vertex tolerances cover the curve ends the vertices stand for
+    # vertex tolerances cover the curve ends the vertices stand for, and the whole of a side
+    # collapsed onto one (within the joining tolerance)
     for e in edges:
         if e.degenerate:
+            m = e.members[0]
+            r = rows[m.patch][m.side]
+            vtol[e.va] = max(vtol[e.va], float(np.linalg.norm(r[:, :3] / r[:, 3:4] - V[e.va], axis=1).max()))
             continue
         o = e.owner
         ends = _evaluate(rows[o.patch][o.side], np.array([e.t0, e.t1]))
