@@ -419,3 +419,26 @@ def test_snap_joins_what_a_corner_cluster_joins_but_never_across_a_closed_edge()
     assert joined[a] == joined[b] == a
     assert joined[0.0] == 0.0 and joined[2 * np.pi] == 2 * np.pi  # across the closed edge: no
     assert joined[0.5] == 0.5 and joined[3.0] == 3.0  # far apart in 3D: no
+
+
+def test_rung_row_takes_the_curve_at_the_rungs_own_parameter():
+    """A rung on an iso piece whose edge parameter is not affine in v takes K at its own
+    parameter: the fitted row, sampled at t, is K at the edge parameter where the rung (linear in
+    v) reaches v(t), with K's end points held exactly (trj8: 150 such rungs, left unshared before)."""
+    from watertight_cli.core.bezier import rational_curve_eval
+    from watertight_cli.substitute import _piece_t_at_v, _rung_row
+
+    H = np.array([[0.3, 0.0, 1.0], [0.3, 0.45, 1.0], [0.3, 0.8, 1.0], [0.3, 1.0, 1.0]])  # v(w) not affine
+    v = np.linspace(0.0, 1.0, 11)
+    tau = _piece_t_at_v(H, v)
+    np.testing.assert_allclose(curve_eval(H[:, :2], tau)[:, 1], v, atol=1e-13)
+    K = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.0], [3.0, 2.0, 1.0], [4.0, 0.0, 1.0]])
+    w0, w1, va, vb = 2.0, 5.0, 0.1, 0.9  # the rung runs from v = 0.1 to 0.9 of the piece
+    row = _rung_row(K, (H, w0, w1, va, vb), 25, 1e-12)
+    assert row is not None and row.shape[0] - 1 <= 25
+    t = np.linspace(0.0, 1.0, 41)
+    w = w0 + _piece_t_at_v(H, va + t * (vb - va)) * (w1 - w0)
+    a = (w - w[0]) / (w[-1] - w[0])
+    np.testing.assert_allclose(curve_eval(row, t), rational_curve_eval(np.c_[K, np.ones(4)], a), atol=1e-12)
+    np.testing.assert_array_equal(row[[0, -1]], K[[0, -1]])
+    assert _rung_row(K, (H, w0, w1, va, vb), 3, 1e-12) is None  # past the degree budget

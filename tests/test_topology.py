@@ -178,3 +178,16 @@ def test_a_wire_through_one_vertex_twice_drops_the_later_cut():
     edges[3:5] = [TopoEdge(3, 2, 0.0, 1.0, [Member(0, "top", 0.0, 1.0)])]
     wires = [{"bottom": [(0, 0)], "right": [(1, 0), (2, 0)], "top": [(3, 0)], "left": [(4, 0)]}]
     assert _pinches(Topology(np.zeros((6, 3)), np.zeros(6), edges, wires)) == set()
+
+
+def test_side_within_the_joining_tolerance_is_degenerate():
+    """A side whose ends are one vertex (closer than eps) and whose points stay within eps is a
+    degenerate edge covered by the vertex's tolerance, not a loop edge that pairs with nothing
+    (bug33398: 25 free sides of 2e-10)."""
+    eps = 1e-9
+    ctrl = np.array([[[0.0, 0.0, 0.0], [0.0, 2e-10, 0.0]], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]]])
+    topo = connect([(ctrl, False)], eps)
+    (e, _), = topo.wires[0]["left"]
+    assert topo.edges[e].degenerate
+    assert topo.vertex_tolerance[topo.edges[e].va] >= 1e-10
+    assert sum(1 for x in topo.edges if x.degenerate) == 1
