@@ -48,7 +48,7 @@ from .core.reduce import reduce_curve
 from .model import Model
 from .tolerances import Tolerances
 from .topology import JOIN_REL
-from .untrim import RUNG_SLIDE, Patch, UntrimResult, _eval, _t_at_u, cell_map
+from .untrim import RUNG_SLIDE, Patch, UntrimResult, _deriv_h, _eval, _t_at_u, cell_map
 
 __all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
 
@@ -447,18 +447,18 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], le
 
 
 def _piece_t_at_v(H: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Parameters of a homogeneous uv piece monotone in v where it reaches the values ``v``
-    (vectorized: a dense table, then Newton steps)."""
+    """Parameters of a homogeneous uv piece monotone in v where it reaches the values ``v``: the
+    vectorized counterpart of ``untrim._t_at_u`` (a dense table, then Newton steps on v(t))."""
     grid = np.linspace(0.0, 1.0, 257)
     table = _eval(H, grid)[:, 1]
     order = np.argsort(table)
     t = np.interp(v, table[order], grid[order])
-    h = 1e-7
+    D = _deriv_h(H)
     for _ in range(4):
-        f = _eval(H, t)[:, 1] - v
-        d = (_eval(H, np.clip(t + h, 0.0, 1.0))[:, 1] - _eval(H, np.clip(t - h, 0.0, 1.0))[:, 1])
-        d /= np.clip(t + h, 0.0, 1.0) - np.clip(t - h, 0.0, 1.0)
-        t = np.clip(t - np.where(d != 0.0, f / np.where(d != 0.0, d, 1.0), 0.0), 0.0, 1.0)
+        h, dh = basis(H.shape[0] - 1, t) @ H, basis(D.shape[0] - 1, t) @ D
+        dv = (dh[:, 1] * h[:, 2] - h[:, 1] * dh[:, 2]) / h[:, 2] ** 2  # (y / w)'
+        step = np.divide(h[:, 1] / h[:, 2] - v, dv, out=np.zeros_like(t), where=dv != 0.0)
+        t = np.clip(t - step, 0.0, 1.0)
     return t
 
 
@@ -1165,33 +1165,37 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
     partners = partners or {}
     if not lonely:
         return
-    # containers: any inner side (a long side may also be shared whole, e.g. across a thin cell
-    # whose two sides were joined: ec_turbine), shorts: the lonely ones
-    every = list(range(len(items)))
+    # shorts: the lonely sides; containers: lonely ones first, else sides shared whole (across a
+    # cell thinner than the joining tolerance whose two sides were joined: ec_turbine)
     a, b = fwd[:, :2], fwd[:, 2:]
     length = np.linalg.norm(b - a, axis=1)
     owner = np.array([it[0] for it in items])
-    lonely_set = set(lonely)
+    pools = [np.array(lonely), np.array(sorted(partners))]
     eps = 1e-7
+
+    def container(k: int, pool: np.ndarray) -> int | None:
+        """The longest side in ``pool`` of another patch whose segment holds both ends of k."""
+        if not len(pool):
+            return None
+        pa, d = a[pool], b[pool] - a[pool]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ta = np.einsum("ij,ij->i", a[k] - pa, d) / np.maximum(length[pool] ** 2, 1e-300)
+            tb = np.einsum("ij,ij->i", b[k] - pa, d) / np.maximum(length[pool] ** 2, 1e-300)
+        da = np.linalg.norm(pa + ta[:, None] * d - a[k], axis=1)
+        db = np.linalg.norm(pa + tb[:, None] * d - b[k], axis=1)
+        ok = ((length[pool] > length[k] * (1 + 1e-12)) & (da <= eps) & (db <= eps)
+              & (np.minimum(ta, tb) >= -eps) & (np.maximum(ta, tb) <= 1 + eps) & (owner[pool] != owner[k]))
+        cands = pool[ok]
+        return int(cands[np.argmax(length[cands])]) if len(cands) else None
+
     used = set()
     groups: dict[int, list] = {}
     for k in lonely:
-        # containers: longer sides of another patch whose segment holds both ends of k
-        d = b - a
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ta = np.einsum("ij,ij->i", a[k] - a, d) / np.maximum(length ** 2, 1e-300)
-            tb = np.einsum("ij,ij->i", b[k] - a, d) / np.maximum(length ** 2, 1e-300)
-        da = np.linalg.norm(a + ta[:, None] * d - a[k], axis=1)
-        db = np.linalg.norm(a + tb[:, None] * d - b[k], axis=1)
-        ok = ((length > length[k] * (1 + 1e-12)) & (da <= eps) & (db <= eps)
-              & (np.minimum(ta, tb) >= -eps) & (np.maximum(ta, tb) <= 1 + eps))
-        ok &= owner != items[k][0]
-        cands = np.flatnonzero(ok)
-        if not len(cands):
+        j = container(k, pools[0])
+        if j is None:
+            j = container(k, pools[1])
+        if j is None:
             continue
-        alone = [c for c in cands if c in lonely_set]
-        cands = np.array(alone) if alone else cands
-        j = every[int(cands[np.argmax(length[cands])])]
         li, lname = items[j][0], items[j][1]
         long_p = fr.patches[li]
         ua, ub = _side_param(long_p, lname, items[k][2]), _side_param(long_p, lname, items[k][3])
