@@ -125,6 +125,41 @@ def test_write_is_atomic_and_deterministic(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["a.step", "b.step", "c.igs", "one", "two"]
 
 
+def test_iges_keeps_reals_to_fourteen_digits(tmp_path):
+    """OCCT's IGES writer rounds to 10 digits by default: shared rows then read back 1.6e-8 apart."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
+    from OCP.Geom import Geom_BezierSurface
+    from OCP.gp import gp_Pnt
+    from OCP.TColgp import TColgp_Array2OfPnt
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from watertight_cli.occ.io import read_shape, write_shape
+
+    rng = np.random.default_rng(3)
+    xyz = rng.normal(size=(4, 4, 3)) * 10.0 ** rng.integers(-3, 3, size=(4, 4, 3))
+    xyz[..., 0] += np.arange(4)[:, None] * 20.0
+    xyz[..., 1] += np.arange(4)[None, :] * 20.0
+    xyz[0, 0] = (-6.661338147751e-16, 1e-5 / 3, 0.0)  # long negative numbers and tiny ones
+    poles = TColgp_Array2OfPnt(1, 4, 1, 4)
+    for i in range(4):
+        for j in range(4):
+            poles.SetValue(i + 1, j + 1, gp_Pnt(*map(float, xyz[i, j])))
+    surface = Geom_BezierSurface(poles)
+    write_shape(BRepBuilderAPI_MakeFace(surface, 1e-7).Face(), tmp_path / "f.igs")
+    back = read_shape(tmp_path / "f.igs").shape
+    face = TopoDS.Face_s(TopExp_Explorer(back, TopAbs_FACE).Current())
+    read = BRep_Tool.Surface_s(face)
+    worst = 0.0
+    for u in np.linspace(0.0, 1.0, 7):
+        for v in np.linspace(0.0, 1.0, 7):
+            a, b = surface.Value(u, v), read.Value(u, v)
+            worst = max(worst, a.Distance(b))
+    assert worst <= 1e-12 * 60.0
+
+
 def test_failed_write_leaves_nothing(tmp_path, monkeypatch):
     from watertight_cli.occ import io
 
