@@ -428,3 +428,33 @@ def test_rung_row_takes_the_curve_at_the_rungs_own_parameter():
     np.testing.assert_allclose(curve_eval(row, t), rational_curve_eval(np.c_[K, np.ones(4)], a), atol=1e-12)
     np.testing.assert_array_equal(row[[0, -1]], K[[0, -1]])
     assert _rung_row(K, (H, w0, w1, va, vb), 3, 1e-12) is None  # past the degree budget
+
+
+def test_stage2_joins_every_pair_of_corners_the_b_rep_makes_one_vertex():
+    """Four cells meet where two cross rows hit a rung: on the right the row hits it 2.5 x the
+    joining tolerance further along (gmsh__U_Joint_2.stp, 1.4e-7). The B-rep takes such a vertex
+    on a side near its end for that end (``topology._MERGE``), so stage 2 must make the corners
+    one point, or the rung's two sides stay 1.4e-7 apart and a STEP reader's repair slants a
+    pcurve off its side (I1)."""
+    from types import SimpleNamespace
+
+    from watertight_cli.topology import JOIN_REL, MERGE_REL, connect
+
+    diag = 10.0
+    gap = 2.5 * JOIN_REL * diag
+
+    def cell(x0, x1, y0l, y1l, y0r, y1r):
+        c = np.array([[[x0, y0l, 0.0], [x0, y1l, 0.0]], [[x1, y0r, 0.0], [x1, y1r, 0.0]]])
+        return SimpleNamespace(ctrl=c, rational=False)
+
+    patches = [cell(0, 1, 0, 1, 0, 1), cell(0, 1, 1, 2, 1, 2), cell(1, 2, 0, 1 + gap, 0, 1),
+               cell(1, 2, 1 + gap, 2, 1, 2)]
+    fr = SimpleNamespace(patches=patches, eps=(1e-12, 1e-12))
+    info = [({}, {c: (p.ctrl[c[0] * -1, c[1] * -1, 0], p.ctrl[c[0] * -1, c[1] * -1, 1])
+                  for c in ((0, 0), (1, 0), (0, 1), (1, 1))}) for p in patches]
+    topo = connect([(p.ctrl, False) for p in patches], JOIN_REL * diag)
+    assert len(topo.vertices) == 9  # the two corners on the rung are one vertex of the B-rep
+    for eps3, together in ((JOIN_REL * diag, False), (MERGE_REL * diag, True)):
+        keys, rep = S._corner_clusters(fr, info, eps3)
+        at = {k: rep[n] for n, k in enumerate(keys)}
+        assert bool(at[(0, (1, 1))] == at[(2, (0, 1))]) is together

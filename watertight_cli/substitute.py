@@ -47,7 +47,7 @@ from .core.bspline import to_bezier
 from .core.reduce import reduce_curve
 from .model import Model
 from .tolerances import Tolerances
-from .topology import JOIN_REL
+from .topology import JOIN_REL, MERGE_REL
 from .untrim import RUNG_SLIDE, Patch, UntrimResult, _deriv_h, _eval, _t_at_u, cell_map
 
 __all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
@@ -721,7 +721,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 lo, hi = sorted((ref.wa, ref.wb))
                 users.setdefault(ref.edge, []).append((lo, hi, row, size))
         infos.append(info)
-        _corner_merges(fr, info, merges, model, JOIN_REL * model.diagonal)
+        _corner_merges(fr, info, merges, model, MERGE_REL * model.diagonal)
     snap = _snap_params(model, users, result.plan, tol, merges)
     for info in infos:
         for refs, _ in info:
@@ -773,7 +773,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 _apply(p, rows, corners, curves, fs, tol)
                 for c, key in corners.items():
                     moved[(pi, c)] = curves.corner(key)
-        labels = _unify_corners(fr, info, moved, fs, JOIN_REL * model.diagonal)
+        labels = _unify_corners(fr, info, moved, fs, MERGE_REL * model.diagonal)
         _share_inner(fr, info, labels, fs, tol, model.diagonal)
         if progress is not None:
             progress(1)

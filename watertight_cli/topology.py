@@ -51,6 +51,9 @@ JOIN_REL = 1e-9
 _CORNERS = ((0, 0), (1, 0), (1, 1), (0, 1))
 _COLLAPSED_REL = 1e-12  # a side whose control points stay this close (x patch size) is one point
 _MERGE = 4.0  # a vertex this close to a side's end (x eps) is that end
+#: corners this close (x diagonal) end up as one vertex: within JOIN_REL directly, or as a vertex on
+#: a side within _MERGE x JOIN_REL of its end; stage 2 clusters corners at this distance
+MERGE_REL = _MERGE * JOIN_REL
 _MAP_DEGREE = 5  # degree of spline parameter maps
 _MAP_REL = 1e-4  # a parameter map is refined while it leaves more than this x eps (I2 asks 1e-3 eps)
 _CHECK = np.array([0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875])  # where parameter maps are measured
