@@ -428,6 +428,17 @@ def test_rung_row_takes_the_curve_at_the_rungs_own_parameter():
     np.testing.assert_allclose(curve_eval(row, t), rational_curve_eval(np.c_[K, np.ones(4)], a), atol=1e-12)
     np.testing.assert_array_equal(row[[0, -1]], K[[0, -1]])
     assert _rung_row(K, (H, w0, w1, va, vb), 3, 1e-12) is None  # past the degree budget
+    # past the budget the rung may take K in the edge's own parameter: the slide is how far that
+    # lies from K at the rung's parameter (trj8: 4 rungs, 1e-5, left unshared and free before)
+    from watertight_cli.substitute import _rung_slide
+
+    slide = _rung_slide(K, (H, w0, w1, va, vb), 3)
+    affine = curve_eval(K, t)
+    exact = rational_curve_eval(np.c_[K, np.ones(4)], a)
+    assert slide == pytest.approx(np.linalg.norm(affine - exact, axis=1).max(), rel=0.05)
+    assert slide > 1e-3
+    straight = np.array([[0.3, 0.0, 1.0], [0.3, 1.0 / 3, 1.0], [0.3, 2.0 / 3, 1.0], [0.3, 1.0, 1.0]])
+    assert _rung_slide(K, (straight, w0, w1, va, vb), 3) < 1e-12  # v affine: no slide
 
 
 def test_stage2_joins_every_pair_of_corners_the_b_rep_makes_one_vertex():

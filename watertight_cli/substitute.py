@@ -63,6 +63,7 @@ _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exac
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
 _BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
 _RUNG_FIT_REL = 0.1  # a rung's fit of K at its own parameter: within this x watertight_rel x diagonal
+_RUNG_SLIDE_MAX = 0.5  # past the fit's budget a rung may slide along K by this x the tolerance
 _T_MERGE = 1e-6  # T-vertex parameters on a long side this close, at one 3D point, are one vertex
 _REFIT_GROWTH = 4.0  # a refitted net spanning more than this times the old one is refused
 _ELEVATE = 25  # elevation used to tighten control-net bounds of a patch's change
@@ -81,7 +82,8 @@ class FaceSubstitution:
     inner_t: int = 0  # inner sides made subdivisions of a neighbour's longer side (T-vertices)
     inner_mismatch: int = 0  # sides paired by their corners but further apart than a copy may move
     rungs_fitted: int = 0  # rungs on an edge that took its curve at their own parameter (a fit)
-    rungs_unshared: int = 0  # such rungs whose fit needed more than the degree budget (left as they are)
+    rungs_slid: int = 0  # such rungs whose fit needed more than the degree budget: K taken as it is
+    rungs_unshared: int = 0  # such rungs that would also slide too far (left as they are)
     # largest distance of a patch from its stage-1 patch at the same (s, t), sampled on a grid (the
     # measured counterpart of ``moved``, which sums certified bounds of the successive steps)
     moved_sampled: float = 0.0
@@ -462,13 +464,9 @@ def _piece_t_at_v(H: np.ndarray, v: np.ndarray) -> np.ndarray:
     return t
 
 
-def _rung_row(K: np.ndarray, along: tuple, max_degree: int, target: float) -> np.ndarray | None:
-    """The row of a rung that lies on an iso piece of an edge whose parameter is not affine along
-    the rung: K at the rung's own parameter, K(a(t)) with a(t) the edge parameter where the rung
-    (linear in v) reaches v(t), normalized to [0, 1]. A polynomial of the lowest degree (up to
-    ``max_degree``) whose least-squares fit with the ends held is within ``target`` of it; None
-    past the budget. The rung then lies on the shared curve to the fit's error instead of staying
-    on the face's own boundary (the input's gap away) or sliding along it."""
+def _rung_samples(K: np.ndarray, along: tuple, max_degree: int):
+    """K at a rung's own parameter, K(a(t)), sampled at Chebyshev points ``tc`` (for a fit) and at
+    even points ``te`` (to measure it): (tc, K(a(tc)), te, K(a(te))); None where a is constant."""
     H, w0, w1, va, vb = along
     n = 8 * (max_degree + 1)
     tc = 0.5 - 0.5 * np.cos(np.pi * np.arange(n) / (n - 1))
@@ -479,12 +477,35 @@ def _rung_row(K: np.ndarray, along: tuple, max_degree: int, target: float) -> np
         return None
     a = np.clip((w - w[0]) / (w[n - 1] - w[0]), 0.0, 1.0)
     pts = rational_curve_eval(_homog(K), a)
-    pc, pe = pts[:n], pts[n:]
+    return tc, pts[:n], te, pts[n:]
+
+
+def _rung_row(K: np.ndarray, along: tuple, max_degree: int, target: float) -> np.ndarray | None:
+    """The row of a rung that lies on an iso piece of an edge whose parameter is not affine along
+    the rung: K at the rung's own parameter, K(a(t)) with a(t) the edge parameter where the rung
+    (linear in v) reaches v(t), normalized to [0, 1]. A polynomial of the lowest degree (up to
+    ``max_degree``) whose least-squares fit with the ends held is within ``target`` of it; None
+    past the budget. The rung then lies on the shared curve to the fit's error instead of staying
+    on the face's own boundary (the input's gap away) or sliding along it."""
+    samples = _rung_samples(K, along, max_degree)
+    if samples is None:
+        return None
+    tc, pc, te, pe = samples
     for q in range(max(1, K.shape[0] - 1), max_degree + 1):
         F = fit_points(tc, pc, q)
         if float(np.linalg.norm(basis(q, te) @ F - pe, axis=1).max()) <= target:
             return F
     return None
+
+
+def _rung_slide(K: np.ndarray, along: tuple, max_degree: int) -> float:
+    """How far K in its own parameter (the row a rung takes when its fit fails) lies from K at the
+    rung's parameter: the patch's interior slides along the rung by this much."""
+    samples = _rung_samples(K, along, max_degree)
+    if samples is None:
+        return float("inf")
+    _, _, te, pe = samples
+    return float(np.linalg.norm(rational_curve_eval(_homog(K), te) - pe, axis=1).max())
 
 
 def _affine_enough(H: np.ndarray, dv: float, veps: float, length: float, slide: float) -> bool:
@@ -754,11 +775,20 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 K = curves.segment(ref.edge, ref.wa, ref.wb)
                 if ref.along is not None:
                     fit_tol = _RUNG_FIT_REL * tol.watertight_rel * model.diagonal
-                    K = _rung_row(K, ref.along, tol.max_degree, fit_tol)
-                    if K is None:
+                    row = _rung_row(K, ref.along, tol.max_degree, fit_tol)
+                    if row is not None:
+                        K = row
+                        fs.rungs_fitted += 1
+                    elif (_rung_slide(K, ref.along, tol.max_degree)
+                          <= _RUNG_SLIDE_MAX * tol.approx_rel * model.diagonal):
+                        # past the degree budget (a(t) not smooth enough for a fit to 1e-13): the
+                        # rung takes K in its own parameter, exact on the edge, and the interior
+                        # slides along it (the move, measured, goes into the patch's bound); left
+                        # unshared, the rung was 1.6e-6 from its neighbour, so trj8 had free edges
+                        fs.rungs_slid += 1
+                    else:
                         fs.rungs_unshared += 1
                         continue
-                    fs.rungs_fitted += 1
                 ka, kb = curves.corner_key(ref.edge, ref.wa), curves.corner_key(ref.edge, ref.wb)
                 for k in (ka, kb):
                     if k[0] == "e":
