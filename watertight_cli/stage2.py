@@ -205,15 +205,23 @@ def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dic
 
 
 def _free_length(model) -> float:
-    """Summed length of the free edges (polyline through 65 samples of each 3D curve)."""
+    """Summed length of the free edges: polylines through 129 and 257 samples of each 3D curve,
+    extrapolated (Richardson; the chord error falls as the square of the step). A plain 65-point
+    polyline is short by 4e-4 of a whole circle and less on the shorter edges that the output
+    splits the same boundary into: on marsCapsule the same free boundary measured 273.421 in and
+    273.433 out, and I3 failed."""
     import numpy as np
+
+    def polyline(e, n: int) -> float:
+        pts = e.curve.evaluate(np.linspace(e.first, e.last, n))
+        return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
 
     total = 0.0
     for e in model.edges:
         if e.degenerate or e.uses != 1 or e.curve is None:
             continue
-        pts = e.curve.evaluate(np.linspace(e.first, e.last, 65))
-        total += float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+        coarse, fine = polyline(e, 129), polyline(e, 257)
+        total += fine + (fine - coarse) / 3.0
     return total
 
 

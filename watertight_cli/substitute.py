@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 from .core.approx import fit_curve, fit_points
 from .core.bernstein import basis, product
 from .core.bezier import (
+    curve_eval,
     curve_segment,
     elevate_curve,
     elevate_surface,
@@ -63,6 +64,7 @@ _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exac
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
 _BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
 _RUNG_FIT_REL = 0.1  # a rung's fit of K at its own parameter: within this x watertight_rel x diagonal
+_BUMP_PEAK = 1.5  # a long side bent through one T-vertex moves elsewhere by at most this x its move
 _RUNG_SLIDE_MAX = 0.5  # past the fit's budget a rung may slide along K by this x the tolerance
 _T_MERGE = 1e-6  # T-vertex parameters on a long side this close, at one 3D point, are one vertex
 _REFIT_GROWTH = 4.0  # a refitted net spanning more than this times the old one is refused
@@ -1274,12 +1276,13 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
 
 def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarray, atol: float = 0.0,
              max_degree: int = 25) -> np.ndarray | None:
-    """The row plus the smallest polynomial correction x (1 - x) L(x) that makes it pass through
-    ``targets`` at ``ts`` (ends kept); None when it already does within ``atol`` (the stacked cells
-    beside a rung that plan cuts made put 40 T-vertices on one side, a hair off it by the rounding
-    of their compositions: bending through them all would take degree 44), or when the correction
-    would need more than ``max_degree`` (the T-vertices then stay where they are; the read-back
-    measures what that leaves)."""
+    """The row plus a polynomial correction, zero at both ends, that makes it pass through
+    ``targets`` at ``ts``: a Bernstein bump that peaks near one T-vertex (``_bump``), a least-norm
+    one through several (``_spread``), each of the lowest degree that keeps it local. None when
+    it already does within ``atol`` (the stacked cells beside a rung that plan cuts made put 40
+    T-vertices on one side, a hair off it by the rounding of their compositions: bending through
+    them all would take degree 44), or when the correction would need more than ``max_degree``
+    (the T-vertices then stay where they are; the read-back measures what that leaves)."""
     h = basis(row.shape[0] - 1, ts) @ row
     pts = h[:, :3] / h[:, 3:4] if rational else h
     delta = targets - pts
@@ -1287,15 +1290,14 @@ def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarra
     n = len(ts)
     if np.abs(delta).max() <= max(1e-15 * scale, atol) or n + 1 > max_degree:
         return None
-    # L in Bernstein form of degree n - 1 interpolating delta / (t (1 - t)); x (1 - x) = B_1^2 / 2.
-    # A rational row is bent in its homogeneous coordinates: adding N(x) = x (1 - x) L(x) to the
-    # numerator moves the curve by N / W, so L interpolates delta W there (exact at the ts)
-    vals = delta / (ts * (1 - ts))[:, None]
+    # the correction N (zero at both ends) takes the value delta at the ts. A rational row is bent
+    # in its homogeneous coordinates: adding N to the numerator moves the curve by N / W, so N
+    # takes delta W there (exact at the ts)
     if rational:
-        vals = vals * h[:, 3:4]
-    L = np.linalg.solve(basis(n - 1, ts), vals) if n > 1 else vals
-    # x (1 - x) = B_1^2(x) / 2: Bernstein coefficients (0, 1/2, 0)
-    D = product(np.array([[0.0], [0.5], [0.0]]), L) if n > 1 else np.outer([0.0, 0.5, 0.0], L[0])
+        delta = delta * h[:, 3:4]
+    D = _bump(float(ts[0]), delta[0], max_degree) if n == 1 else _spread(ts, delta, max_degree)
+    if D is None:
+        return None
     deg = max(row.shape[0] - 1, D.shape[0] - 1)
     base = elevate_curve(row, deg - (row.shape[0] - 1)) if deg > row.shape[0] - 1 else row.copy()
     D = elevate_curve(D, deg - (D.shape[0] - 1)) if deg > D.shape[0] - 1 else D
@@ -1304,6 +1306,56 @@ def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarra
     else:
         base += D
     return base
+
+
+def _bump(tau: float, delta: np.ndarray, max_degree: int) -> np.ndarray:
+    """The correction that moves a curve by ``delta`` at ``tau`` and keeps its ends: one Bernstein
+    polynomial B_i^m scaled to ``delta`` at tau, of the lowest degree m (up to the budget) whose
+    largest value stays within _BUMP_PEAK x delta, else the one that comes closest. The quadratic
+    x (1 - x) peaks in the middle: at tau = 0.96 it moved the middle of the side 7 x as far as the
+    T-vertex (bug24595: 0.087 for 0.012)."""
+    best = None
+    for m in range(2, max(max_degree, 2) + 1):
+        i = min(max(int(round(tau * m)), 1), m - 1)
+        at = float(basis(m, np.array([tau]))[0, i])
+        peak = float(basis(m, np.array([i / m]))[0, i]) / at
+        if best is None or peak < best[0]:
+            best = (peak, m, i, at)
+        if peak <= _BUMP_PEAK:
+            break
+    _, m, i, at = best
+    D = np.zeros((m + 1, len(delta)))
+    D[i] = delta / at
+    return D
+
+
+def _spread(ts: np.ndarray, delta: np.ndarray, max_degree: int) -> np.ndarray | None:
+    """The correction through several T-vertices: Bernstein coefficients of degree m, zero at both
+    ends, equal to ``delta`` at ``ts``, of least norm; the lowest m (from the interpolating one,
+    len(ts) + 1, up to the budget) whose largest value (sampled) stays within _BUMP_PEAK x the
+    largest move, else the one that comes closest. The interpolant alone bulges between T-vertices near an
+    end (fusee: 0.009 against a move of 0.003; the bend was refused and the short sides moved their
+    corners off their neighbours' rows). None when no degree in the budget interpolates them."""
+    n = len(ts)
+    scale = float(np.linalg.norm(delta, axis=1).max())
+    x = np.linspace(0.0, 1.0, 129)
+    best = None
+    for m in range(n + 1, max(max_degree, n + 1) + 1):
+        A = basis(m, ts)[:, 1:-1]
+        c = np.linalg.lstsq(A, delta, rcond=None)[0]  # least norm; T-vertices a hair apart are
+        if np.abs(A @ c - delta).max() > 1e-9 * scale:  # near-singular: it must still interpolate
+            continue
+        peak = float(np.linalg.norm(basis(m, x)[:, 1:-1] @ c, axis=1).max()) / scale
+        if best is None or peak < best[0]:
+            best = (peak, m, c)
+        if peak <= _BUMP_PEAK:
+            break
+    if best is None:
+        return None
+    _, m, c = best
+    D = np.zeros((m + 1, delta.shape[1]))
+    D[1:-1] = c
+    return D
 
 
 def _side_param(p: Patch, name: str, uv: np.ndarray) -> float:
@@ -1318,6 +1370,14 @@ def _side_param(p: Patch, name: str, uv: np.ndarray) -> float:
     if p.box:
         return float(np.clip((uv[axis] - ends[0, axis]) / (ends[1, axis] - ends[0, axis]), 0.0, 1.0))
     return _t_at_u(side.H, float(uv[axis]), axis=axis)
+
+
+def _row_gap(a: np.ndarray, b: np.ndarray, rational: bool) -> float:
+    """Largest distance between two rows (of one degree) at the same parameter, sampled."""
+    g = np.linspace(0.0, 1.0, 33)
+    if rational:
+        return float(np.linalg.norm(rational_curve_eval(a, g) - rational_curve_eval(b, g), axis=1).max())
+    return float(np.linalg.norm(curve_eval(a, g) - curve_eval(b, g), axis=1).max())
 
 
 def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: FaceSubstitution,
@@ -1358,9 +1418,13 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
         p.factors = p.factors + added
         return
     xyz = _cartesian(own, rational), _cartesian(row, rational)
-    if np.linalg.norm(xyz[0] - xyz[1], axis=1).max() > tol.approx_rel * diagonal + 2.0 * fs.moved:
+    limit = tol.approx_rel * diagonal + 2.0 * fs.moved
+    if (np.linalg.norm(xyz[0] - xyz[1], axis=1).max() > limit
+            and _row_gap(own, row, rational) > limit):
         # more apart than the tolerance and the corner moves explain: not one side (left as it is,
-        # counted; the read-back check measures what it leaves)
+        # counted; the read-back check measures what it leaves). The control points tell first;
+        # the curves decide: a long side bent through a T-vertex near its end (bug24595, 0.012 at
+        # t = 0.96) has control points 28 x further apart than its points
         fs.inner_mismatch += 1
         return
     H = H.copy()
