@@ -476,7 +476,7 @@ def test_stage2_joins_every_pair_of_corners_the_b_rep_makes_one_vertex():
 @pytest.mark.parametrize("rational", [False, True])
 def test_one_t_vertex_near_an_end_bends_the_side_locally(rational):
     """A long straight side bent through one T-vertex at t = 0.963 (bug24595: the hole's extremum
-    on a slab line, moved 0.012 onto the edge's curve) moves nowhere by more than 1.5 x the
+    on a slab line, moved 0.012 onto the edge's curve) moves nowhere by more than 1.1 x the
     T-vertex's move; the quadratic correction moved its middle 7 x as far and was refused, so the
     T-sides stayed off the long side and 19 edges were free."""
     from watertight_cli.core.bezier import rational_curve_eval
@@ -494,7 +494,7 @@ def test_one_t_vertex_near_an_end_bends_the_side_locally(rational):
     t = np.linspace(0.0, 1.0, 2001)
     moved = np.linalg.norm(ev(bent, t) - ev(row, t), axis=1)
     spread = 1.3 if rational else 1.0  # the weights' ratio: the numerator's bump is divided by W
-    assert moved.max() <= 1.5 * spread * np.linalg.norm(target - on)
+    assert moved.max() <= 1.1 * spread * np.linalg.norm(target - on)
     np.testing.assert_allclose(ev(bent, np.array([0.0, 1.0])), ev(row, np.array([0.0, 1.0])), atol=1e-13)
 
 

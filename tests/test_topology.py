@@ -191,3 +191,19 @@ def test_side_within_the_joining_tolerance_is_degenerate():
     assert topo.edges[e].degenerate
     assert topo.vertex_tolerance[topo.edges[e].va] >= 1e-10
     assert sum(1 for x in topo.edges if x.degenerate) == 1
+
+
+def test_a_tiny_patch_closed_on_itself_is_a_needle_to_drop():
+    """Two sides of one patch that pair with each other, the other two collapsed: a part of its
+    own that encloses nothing (gmsh__U_Joint_2.stp: 8 of them, 2e-5 long, each a shell inside the
+    solid, which BRepCheck then found invalid). Only tiny ones are dropped."""
+    from watertight_cli.topology import stray_needles
+
+    eps = 1e-7
+    for size, dropped in ((2e-5, True), (1.0, False)):
+        a, b = np.zeros(3), np.array([size, 0.3 * size, 0.0])
+        needle = np.array([[a, b], [b, b]])
+        square = np.array([[[5.0, 0, 0], [5.0, 1, 0]], [[6.0, 0, 0], [6.0, 1, 0]]])
+        nets = [(needle, False), (square, False)]
+        topo = connect(nets, eps)
+        assert stray_needles(topo, nets, eps) == ({0} if dropped else set())

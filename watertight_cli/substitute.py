@@ -64,7 +64,9 @@ _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exac
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
 _BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
 _RUNG_FIT_REL = 0.1  # a rung's fit of K at its own parameter: within this x watertight_rel x diagonal
-_BUMP_PEAK = 1.5  # a long side bent through one T-vertex moves elsewhere by at most this x its move
+_BUMP_PEAK = 1.1  # a long side bent through its T-vertices moves elsewhere by at most this x their move
+_BUMP_CAP = 2.0  # ... and is not bent at all where no degree in the budget keeps it within this,
+_BUMP_SLACK = 0.1  # unless the bulge stays within this x the tolerance (tiny moves near an end)
 _RUNG_SLIDE_MAX = 0.5  # past the fit's budget a rung may slide along K by this x the tolerance
 _T_MERGE = 1e-6  # T-vertex parameters on a long side this close, at one 3D point, are one vertex
 _REFIT_GROWTH = 4.0  # a refitted net spanning more than this times the old one is refused
@@ -1260,7 +1262,7 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
         shorts = cuts
         if ts:
             bent = _through(row, long_p.rational, np.array(ts), np.array(targets), _BEND_REL * diagonal,
-                            tol.max_degree)
+                            tol.max_degree, _BUMP_SLACK * tol.approx_rel * diagonal)
             if bent is not None:
                 _copy_row(long_p, lname, bent, long_p.rational, fs, tol, diagonal, long_p.factors)
                 row = _row(long_p.ctrl, lname)
@@ -1275,14 +1277,15 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
 
 
 def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarray, atol: float = 0.0,
-             max_degree: int = 25) -> np.ndarray | None:
+             max_degree: int = 25, slack: float = 0.0) -> np.ndarray | None:
     """The row plus a polynomial correction, zero at both ends, that makes it pass through
     ``targets`` at ``ts``: a Bernstein bump that peaks near one T-vertex (``_bump``), a least-norm
     one through several (``_spread``), each of the lowest degree that keeps it local. None when
     it already does within ``atol`` (the stacked cells beside a rung that plan cuts made put 40
     T-vertices on one side, a hair off it by the rounding of their compositions: bending through
     them all would take degree 44), or when the correction would need more than ``max_degree``
-    (the T-vertices then stay where they are; the read-back measures what that leaves)."""
+    (the T-vertices then stay where they are; the read-back measures what that leaves), or when
+    the correction would bulge past _BUMP_CAP x the move and past ``slack``."""
     h = basis(row.shape[0] - 1, ts) @ row
     pts = h[:, :3] / h[:, 3:4] if rational else h
     delta = targets - pts
@@ -1295,7 +1298,8 @@ def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarra
     # takes delta W there (exact at the ts)
     if rational:
         delta = delta * h[:, 3:4]
-    D = _bump(float(ts[0]), delta[0], max_degree) if n == 1 else _spread(ts, delta, max_degree)
+    D = (_bump(float(ts[0]), delta[0], max_degree, slack) if n == 1
+         else _spread(ts, delta, max_degree, slack))
     if D is None:
         return None
     deg = max(row.shape[0] - 1, D.shape[0] - 1)
@@ -1308,10 +1312,11 @@ def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarra
     return base
 
 
-def _bump(tau: float, delta: np.ndarray, max_degree: int) -> np.ndarray:
+def _bump(tau: float, delta: np.ndarray, max_degree: int, slack: float = 0.0) -> np.ndarray | None:
     """The correction that moves a curve by ``delta`` at ``tau`` and keeps its ends: one Bernstein
     polynomial B_i^m scaled to ``delta`` at tau, of the lowest degree m (up to the budget) whose
-    largest value stays within _BUMP_PEAK x delta, else the one that comes closest. The quadratic
+    largest value stays within _BUMP_PEAK x delta, else the one that comes closest (None past
+    _BUMP_CAP: a T-vertex a hair from an end, where any bump would bulge). The quadratic
     x (1 - x) peaks in the middle: at tau = 0.96 it moved the middle of the side 7 x as far as the
     T-vertex (bug24595: 0.087 for 0.012)."""
     best = None
@@ -1323,13 +1328,15 @@ def _bump(tau: float, delta: np.ndarray, max_degree: int) -> np.ndarray:
             best = (peak, m, i, at)
         if peak <= _BUMP_PEAK:
             break
+    if best[0] > _BUMP_CAP and best[0] * float(np.linalg.norm(delta)) > slack:
+        return None  # a T-vertex a hair from an end: no polynomial of the budget is local
     _, m, i, at = best
     D = np.zeros((m + 1, len(delta)))
     D[i] = delta / at
     return D
 
 
-def _spread(ts: np.ndarray, delta: np.ndarray, max_degree: int) -> np.ndarray | None:
+def _spread(ts: np.ndarray, delta: np.ndarray, max_degree: int, slack: float = 0.0) -> np.ndarray | None:
     """The correction through several T-vertices: Bernstein coefficients of degree m, zero at both
     ends, equal to ``delta`` at ``ts``, of least norm; the lowest m (from the interpolating one,
     len(ts) + 1, up to the budget) whose largest value (sampled) stays within _BUMP_PEAK x the
@@ -1350,7 +1357,7 @@ def _spread(ts: np.ndarray, delta: np.ndarray, max_degree: int) -> np.ndarray | 
             best = (peak, m, c)
         if peak <= _BUMP_PEAK:
             break
-    if best is None:
+    if best is None or best[0] > _BUMP_CAP and best[0] * scale > slack:
         return None
     _, m, c = best
     D = np.zeros((m + 1, delta.shape[1]))

@@ -54,6 +54,7 @@ _MERGE = 4.0  # a vertex this close to a side's end (x eps) is that end
 #: corners this close (x diagonal) end up as one vertex: within JOIN_REL directly, or as a vertex on
 #: a side within _MERGE x JOIN_REL of its end; stage 2 clusters corners at this distance
 MERGE_REL = _MERGE * JOIN_REL
+_NEEDLE = 1000.0  # a patch closed on its own and within this x eps is a needle (``stray_needles``)
 _MAP_DEGREE = 5  # degree of spline parameter maps
 _MAP_REL = 1e-4  # a parameter map is refined while it leaves more than this x eps (I2 asks 1e-3 eps)
 _CHECK = np.array([0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875])  # where parameter maps are measured
@@ -213,6 +214,25 @@ def flat(ctrl: np.ndarray, rational: bool, eps: float) -> bool:
     xyz = ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl
     return bool(np.linalg.norm(xyz - xyz[:, :1], axis=-1).max() <= eps
                 or np.linalg.norm(xyz - xyz[:1, :], axis=-1).max() <= eps)
+
+
+def stray_needles(topo: Topology, nets: list[tuple[np.ndarray, bool]], eps: float) -> set[int]:
+    """Patches that make a closed part on their own and are tiny (within ``_NEEDLE`` x eps): two of
+    their sides pair with each other, so they enclose nothing. Left in, each became a shell of its
+    own inside the solid and BRepCheck found the solid invalid (gmsh__U_Joint_2.stp: 8 such
+    patches, 2e-5 long, where five edges meet within 3e-5)."""
+    out = set()
+    for part in topo.components():
+        if len(part) != 1:
+            continue
+        i = part[0]
+        closed = all(len(topo.edges[e].members) >= 2 or topo.edges[e].degenerate
+                     for segs in topo.wires[i].values() for e, _ in segs)
+        c, r = nets[i]
+        xyz = (c[..., :3] / c[..., 3:4] if r else c).reshape(-1, 3)
+        if closed and float(np.ptp(xyz, axis=0).max()) <= _NEEDLE * eps:
+            out.add(i)
+    return out
 
 
 def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:

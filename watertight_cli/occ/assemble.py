@@ -76,7 +76,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None)
     (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
     connected part; a solid where the group was a solid's shell and no edge is left free. Returns
     the compound and counts (free edges left, shells, solids, T-vertices, largest edge deviation)."""
-    from ..topology import connect, flat
+    from ..topology import connect, flat, stray_needles
     from .build import joined_faces
 
     builder = BRep_Builder()
@@ -92,6 +92,11 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None)
         info["flat_patches"] += len(nets) - len(keep)
         nets = keep
         topo = connect([(c, r) for c, r, _ in nets], eps)
+        needles = stray_needles(topo, [(c, r) for c, r, _ in nets], eps)
+        if needles:
+            info["flat_patches"] += len(needles)
+            nets = [n for i, n in enumerate(nets) if i not in needles]
+            topo = connect([(c, r) for c, r, _ in nets], eps)
         faces = joined_faces(nets, topo, tick)
         free = topo.free_edges
         info["free_edges"] += free
