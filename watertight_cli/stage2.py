@@ -212,15 +212,15 @@ def _free_length(model) -> float:
     273.433 out, and I3 failed."""
     import numpy as np
 
-    def polyline(e, n: int) -> float:
-        pts = e.curve.evaluate(np.linspace(e.first, e.last, n))
+    def polyline(pts: np.ndarray) -> float:
         return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
 
     total = 0.0
     for e in model.edges:
         if e.degenerate or e.uses != 1 or e.curve is None:
             continue
-        coarse, fine = polyline(e, 129), polyline(e, 257)
+        pts = e.curve.evaluate(np.linspace(e.first, e.last, 257))
+        coarse, fine = polyline(pts[::2]), polyline(pts)  # the 129 points are every other one
         total += fine + (fine - coarse) / 3.0
     return total
 

@@ -484,14 +484,16 @@ def _rung_samples(K: np.ndarray, along: tuple, max_degree: int):
     return tc, pts[:n], te, pts[n:]
 
 
-def _rung_row(K: np.ndarray, along: tuple, max_degree: int, target: float) -> np.ndarray | None:
+def _rung_row(K: np.ndarray, along: tuple, max_degree: int, target: float,
+              samples: tuple | None = None) -> np.ndarray | None:
     """The row of a rung that lies on an iso piece of an edge whose parameter is not affine along
     the rung: K at the rung's own parameter, K(a(t)) with a(t) the edge parameter where the rung
     (linear in v) reaches v(t), normalized to [0, 1]. A polynomial of the lowest degree (up to
     ``max_degree``) whose least-squares fit with the ends held is within ``target`` of it; None
     past the budget. The rung then lies on the shared curve to the fit's error instead of staying
-    on the face's own boundary (the input's gap away) or sliding along it."""
-    samples = _rung_samples(K, along, max_degree)
+    on the face's own boundary (the input's gap away) or sliding along it. ``samples``: those of
+    ``_rung_samples``, when the caller has them."""
+    samples = samples or _rung_samples(K, along, max_degree)
     if samples is None:
         return None
     tc, pc, te, pe = samples
@@ -502,10 +504,10 @@ def _rung_row(K: np.ndarray, along: tuple, max_degree: int, target: float) -> np
     return None
 
 
-def _rung_slide(K: np.ndarray, along: tuple, max_degree: int) -> float:
+def _rung_slide(K: np.ndarray, along: tuple, max_degree: int, samples: tuple | None = None) -> float:
     """How far K in its own parameter (the row a rung takes when its fit fails) lies from K at the
     rung's parameter: the patch's interior slides along the rung by this much."""
-    samples = _rung_samples(K, along, max_degree)
+    samples = samples or _rung_samples(K, along, max_degree)
     if samples is None:
         return float("inf")
     _, _, te, pe = samples
@@ -779,11 +781,12 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 K = curves.segment(ref.edge, ref.wa, ref.wb)
                 if ref.along is not None:
                     fit_tol = _RUNG_FIT_REL * tol.watertight_rel * model.diagonal
-                    row = _rung_row(K, ref.along, tol.max_degree, fit_tol)
+                    samples = _rung_samples(K, ref.along, tol.max_degree)
+                    row = _rung_row(K, ref.along, tol.max_degree, fit_tol, samples)
                     if row is not None:
                         K = row
                         fs.rungs_fitted += 1
-                    elif (_rung_slide(K, ref.along, tol.max_degree)
+                    elif (_rung_slide(K, ref.along, tol.max_degree, samples)
                           <= _RUNG_SLIDE_MAX * tol.approx_rel * model.diagonal):
                         # past the degree budget (a(t) not smooth enough for a fit to 1e-13): the
                         # rung takes K in its own parameter, exact on the edge, and the interior
@@ -953,9 +956,10 @@ def _corner_clusters(fr, info, eps3: float = 0.0, fixed: dict | None = None
     representative: corners closer in uv than the face's line thresholds (``FaceResult.eps``,
     where stage 1 merged slab lines) are one corner; greedy clusters around representatives (no
     chaining: a run of close corners along a line must not merge corners that are far apart).
-    With ``eps3``, corners closer than that in 3D join too, closest first (as the B-rep's
-    vertices do, ``topology.JOIN_REL``): a cell thinner than the joining tolerance is dropped as
-    flat when the B-rep is built, so the sides on both sides of it must be one row. Two clusters
+    With ``eps3``, corners closer than that in 3D join too, closest first (the callers pass the
+    distance at which the B-rep's vertices merge, ``topology.MERGE_REL``): a cell thinner than the
+    joining tolerance is dropped as flat when the B-rep is built, so the sides on both sides of it
+    must be one row. Two clusters
     that hold corners ``fixed`` at different points (on shared curves) stay apart: moving either
     would take its row off its curve (fusee: a wedge cell whose short side is 9e-8 long)."""
     keys = [(i, c) for i in range(len(fr.patches)) for c in ((0, 0), (1, 0), (0, 1), (1, 1))]

@@ -195,7 +195,7 @@ def _write_iges(shape: TopoDS_Shape, tmp: str) -> bool:
 
     OCCT's IGES writer rounds reals to 10 significant digits by default. Neighbouring patches share
     bitwise-equal boundary rows, but after that rounding the read-back faces were 1.6e-8 apart
-    (loft_minus_cylinder); at 14 digits (as OCCT writes STEP) they are 1.9e-11 apart, as in STEP.
+    (loft_minus_cylinder.igs); at 14 digits (about what OCCT writes to STEP) they are 1.0e-12 apart.
     OCCT's zero suppression drops the exponent of numbers printed in 20 characters or more
     ("-6.6613381477510E-16" came out as "-6.661338148"), so it stays off.
     """
