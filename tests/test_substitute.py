@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from watertight_cli import substitute as S
 from watertight_cli.core.bernstein import product
 from watertight_cli.core.bezier import curve_eval, curve_segment
+from watertight_cli.gaps import vertex_corners
 from watertight_cli.substitute import _divide, _through, _weight_factor, substitute
 from watertight_cli.tolerances import Tolerances
 
@@ -367,7 +368,7 @@ def test_segment_ends_on_its_corners():
     from watertight_cli.inspect import inspect
 
     model = inspect(str(fixture_path("filleted_freeform.step")), Tolerances()).model
-    curves = S._Curves(model, 1e-8, 25)
+    curves = S._Curves(model, 1e-8, 25, vertex_corners(model, 1e-9 * model.diagonal)[0])
     checked = 0
     for edge in model.edges:
         if edge.curve is None or edge.degenerate or len(edge.curve.knots) < 2 * edge.curve.degree + 3:
@@ -533,3 +534,39 @@ def test_corpus_files_that_close_completely(tmp_path, name):
     rep = convert_file(str(corpus_path(name)), str(tmp_path / "o.step"), Tolerances())
     assert rep["invariants"] == {"I1": True, "I2": True, "I3": True, "I4": True, "valid": True}
     assert rep["after"]["free_edges"] == 0
+
+
+def test_vertex_off_its_curves_is_not_followed():
+    """A vertex the file stores away from the curve ends that meet there (gmsh__917_fusee.stp: 0.0099
+    from three ends that agree to 1e-13) gives its corners the ends' point, and every shared curve
+    ending there keeps its place; the gap reported is what is left between the points."""
+    from dataclasses import replace
+
+    from watertight_cli.inspect import inspect
+
+    model = inspect(str(fixture_path("filleted_freeform.step")), Tolerances()).model
+    eps = 1e-9 * model.diagonal
+    points, gap = vertex_corners(model, eps)
+    assert np.abs(points - model.vertices).max() < 1e-6 * model.diagonal  # a clean file: where it was
+    assert gap.max() < 1e-6 * model.diagonal
+    off = model.vertices.copy()
+    shift = np.array([3e-3, -2e-3, 1e-3]) * model.diagonal
+    off[0] += shift
+    moved = replace(model, vertices=off)
+    points2, gap2 = vertex_corners(moved, eps)
+    np.testing.assert_allclose(points2[0], points[0], atol=1e-6 * model.diagonal)
+    assert gap2[0] < 1e-6 * model.diagonal
+    np.testing.assert_array_equal(points2[1:], points[1:])
+    # the shared curves ending at vertex 0 keep their place (the file's vertex would shear them)
+    curves = S._Curves(moved, 1e-8, 25, points2)
+    follow = S._Curves(moved, 1e-8, 25, off)
+    ends = [e for e in moved.edges if e.curve is not None and 0 in e.vertices]
+    assert ends
+    for e in ends:
+        mid = 0.5 * (e.first + e.last)
+        exact = e.curve.evaluate(np.array([mid]))[0]
+        K = curves.segment(e.index, mid, mid)
+        F = follow.segment(e.index, mid, mid)
+        xyz = lambda K: K[0, :3] / K[0, 3] if K.shape[1] == 4 else K[0]  # noqa: E731
+        assert np.linalg.norm(xyz(K) - exact) < 1e-6 * model.diagonal
+        assert np.linalg.norm(xyz(F) - exact) > 0.4 * np.linalg.norm(shift)

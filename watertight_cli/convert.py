@@ -64,7 +64,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     t_retime = time.perf_counter() - t
 
     t = time.perf_counter()
-    result = _stage1(model, tol, stage, progress)
+    result = _stage1(model, tol, progress)
     # a re-timed pcurve is a repair: a face that stage 1 cannot decompose with it (cuts moved along
     # a wiggly near-iso pcurve can fold a cell) keeps its input pcurves, and stage 1 runs again
     failed = {fr.face for fr in result.faces if fr.problems}
@@ -72,7 +72,7 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     if back:
         model.faces[:] = [pristine[i] if i in back else f for i, f in enumerate(prepared)]
         retimed = [r for r in retimed if r.face not in back]
-        result = _stage1(model, tol, stage, progress)
+        result = _stage1(model, tol, progress)
     # stage 1 split in three: the edge plan, the cells, the reparameterization (which also takes
     # the retries and what the sub-timers do not see)
     sub = result.timings()
@@ -119,24 +119,26 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     return report
 
 
-def _stage1(model, tol: Tolerances, stage: str, progress):
-    """Stage 1 on the whole model; in a full conversion with half the tolerance first (substitution
-    moves an approximated patch's boundary by up to its approximation error plus the input's gap,
-    so stage 2 gets the other half), and the whole tolerance for faces that half cannot decompose
-    (a fold that only a coarser side unfolds); the read-back check says if their total stays within."""
+def _stage1(model, tol: Tolerances, progress):
+    """Stage 1 on the whole model, with half the tolerance first (in a full conversion the
+    substitution moves an approximated patch's boundary by up to its approximation error plus the
+    input's gap, so stage 2 gets the other half), and the whole tolerance for faces that half
+    cannot decompose (a fold that only a coarser side unfolds); the read-back check says if their
+    total stays within. ``--stage untrim`` runs the same, so that its patches are the ones a full
+    conversion substitutes (at the whole tolerance alone, gmsh__wing_fuselage.step face 13 kept a
+    fold that the half-tolerance edge plan does not make)."""
     from .untrim import UntrimError, untrim, untrim_face
 
     tick = progress("untrim", len(model.faces)) if progress else None
-    result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel) if stage == "full" else tol, tick)
-    if stage == "full":
-        for i, fr in enumerate(result.faces):
-            if fr.problems:
-                try:
-                    retry = untrim_face(model.faces[fr.face], model, result.plan, tol)
-                except UntrimError:
-                    continue
-                if not retry.problems:
-                    result.faces[i] = retry
+    result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel), tick)
+    for i, fr in enumerate(result.faces):
+        if fr.problems:
+            try:
+                retry = untrim_face(model.faces[fr.face], model, result.plan, tol)
+            except UntrimError:
+                continue
+            if not retry.problems:
+                result.faces[i] = retry
     return result
 
 

@@ -128,3 +128,46 @@ def edge_gaps(model: Model, tracks: Tracks) -> list[EdgeGap]:
         out.append(EdgeGap(e.index, e.faces, e.uses, curve_gap, face_gap, e.tolerance,
                            tuple(float(x) for x in where)))
     return out
+
+
+def vertex_corners(model: Model, eps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the patch corners at each vertex go, and the input's own gap there.
+
+    The input offers several points for a vertex: its own point, the ends of the edge curves
+    that meet there, and each face's surface(pcurve) at those ends. The corner is the vertex's
+    point, unless the centre of the bounding box of the other points is nearer to all of them by
+    more than ``eps``: a vertex the kernel stores off its curves would otherwise drag every corner
+    onto it and shear each curve that ends there (in gmsh__917_fusee.stp one vertex stands 0.0099
+    from its three curve ends, which agree to 1e-13, and its faces moved by twice their edges'
+    gap). Returns (points (k, 3), gap (k,)): gap is the largest distance from the chosen point to
+    any of those points, how far a corner there must move at least (0 where nothing ends).
+    """
+    points = np.array(model.vertices, dtype=float, copy=True)
+    gap = np.zeros(len(points))
+    ends: dict[int, list[np.ndarray]] = defaultdict(list)
+    for e in model.edges:
+        if e.curve is None or e.degenerate:
+            continue
+        for v, p in zip(e.vertices, e.curve.evaluate(np.array([e.first, e.last])), strict=True):
+            if v >= 0:
+                ends[v].append(p)
+    for f in model.faces:
+        uses = [(model.edges[c.edge], c.pcurve) for lp in f.loops for c in lp.coedges
+                if c.pcurve is not None and not model.edges[c.edge].degenerate]
+        if not uses:
+            continue
+        uv = np.concatenate([pc.evaluate(np.array([e.first, e.last])) for e, pc in uses])
+        xyz = f.surface.evaluate(uv).reshape(len(uses), 2, 3)
+        for (e, _), pair in zip(uses, xyz, strict=True):
+            for v, p in zip(e.vertices, pair, strict=True):
+                if v >= 0:
+                    ends[v].append(p)
+    for v, pts in ends.items():
+        E = np.array(pts)
+        centre = 0.5 * (E.min(axis=0) + E.max(axis=0))
+        off_vertex = float(np.linalg.norm(E - points[v], axis=1).max())
+        off_centre = float(np.linalg.norm(E - centre, axis=1).max())
+        if off_centre < off_vertex - eps:
+            points[v] = centre
+        gap[v] = min(off_vertex, off_centre)
+    return points, gap

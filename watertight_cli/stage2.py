@@ -7,7 +7,7 @@ Invariants measured on the written file (read back with the same code as ``water
   the two faces' boundaries against each other) is at most ``watertight_rel`` x diagonal;
 - I3: no free edges where the input had none, and no more than the input had; solids stay solids;
 - I4: per face, the deviation bound (stage 1 + substitution) is at most the tolerance plus the
-  input's largest gap on the face's edges.
+  input's largest gap on the face's edges and at their vertices.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     valid = is_valid(shape)
     times["build"] = time.perf_counter() - t
 
-    input_gap = _local_input_gaps(model, ins.gaps)
+    input_gap = _local_input_gaps(model, ins.gaps, tol)
     allowed_base = tol.approx_rel * model.diagonal
     faces = []
     for fr, fs, frep in zip(result.faces, sub.faces, report["faces"], strict=True):
@@ -131,12 +131,16 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     return report
 
 
-def _local_input_gaps(model, gaps) -> dict[int, float]:
+def _local_input_gaps(model, gaps, tol: Tolerances) -> dict[int, float]:
     """Per face, the input's own gap near it (I4's allowance): the largest gap of its edges and of
     every edge that meets them at a vertex. A patch corner moves onto the model's vertex, so a
-    corner where an edge with a larger gap ends moves by that edge's gap, not the face's own."""
+    corner where an edge with a larger gap ends moves by that edge's gap, not the face's own, and
+    by the distance of its point from the curve ends there (``gaps.vertex_corners``)."""
+    from .gaps import vertex_corners
+
     edge_gap = {g.edge: g.gap for g in gaps}
-    vertex_gap: dict[int, float] = {}
+    # a corner at a vertex also moves by the distance of its point from the curve ends there
+    vertex_gap: dict[int, float] = dict(enumerate(vertex_corners(model, tol.exact_rel * model.diagonal)[1]))
     for e in model.edges:
         for v in e.vertices:
             vertex_gap[v] = max(vertex_gap.get(v, 0.0), edge_gap.get(e.index, 0.0))

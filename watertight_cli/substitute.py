@@ -46,6 +46,7 @@ from .core.bezier import (
 )
 from .core.bspline import to_bezier
 from .core.reduce import reduce_curve
+from .gaps import vertex_corners
 from .model import Model
 from .tolerances import Tolerances
 from .topology import JOIN_REL, MERGE_REL
@@ -133,8 +134,9 @@ class _Curves:
     so polynomial patches stay polynomial (its sampled distance from C is recorded).
     """
 
-    def __init__(self, model: Model, poly_tol: float, max_degree: int):
+    def __init__(self, model: Model, poly_tol: float, max_degree: int, vertices: np.ndarray):
         self.model = model
+        self.vertices = vertices  # the corner point of each vertex (``gaps.vertex_corners``)
         self.poly_tol = poly_tol
         self.max_degree = max_degree
         self._spans: dict[int, tuple[np.ndarray, np.ndarray, bool]] = {}
@@ -174,7 +176,7 @@ class _Curves:
 
     def corner(self, key) -> np.ndarray:
         if key[0] == "v":
-            return self.model.vertices[key[1]]
+            return self.vertices[key[1]]
         if key not in self._corners:
             # the point of the curve the segments are cut from: C', or its per-span fit
             h = self._piece(key[1], key[2], key[2])[0]
@@ -207,7 +209,7 @@ class _Curves:
         if e not in self._moves:
             edge = self.model.edges[e]
             ends = edge.curve.evaluate(np.array([edge.first, edge.last]))
-            v = self.model.vertices[list(edge.vertices)]
+            v = self.vertices[list(edge.vertices)]
             self._moves[e] = (v[0] - ends[0], v[1] - ends[1])
         return self._moves[e]
 
@@ -298,7 +300,7 @@ class _Curves:
             nets.append(fit[0])
             err = max(err, fit[1])
         # onto the model's vertices, affinely in w (as ``exact`` does for C)
-        v = self.model.vertices[list(edge.vertices)]
+        v = self.vertices[list(edge.vertices)]
         d0, d1 = v[0] - nets[0][0], v[1] - nets[-1][-1]
         span = edge.last - edge.first
         for i, (x0, x1) in enumerate(zip(breaks[:-1], breaks[1:], strict=True)):
@@ -726,7 +728,8 @@ def _homog(K: np.ndarray) -> np.ndarray:
 
 def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=None) -> Substitution:
     """Put the shared curves into every patch of ``result`` (in place); returns what changed."""
-    curves = _Curves(model, _POLY_REL * tol.approx_rel * model.diagonal, tol.max_degree)
+    curves = _Curves(model, _POLY_REL * tol.approx_rel * model.diagonal, tol.max_degree,
+                     vertex_corners(model, tol.exact_rel * model.diagonal)[0])
     infos = []
     users: dict[tuple, list[np.ndarray]] = {}
     corner_uses: dict[tuple, int] = {}
