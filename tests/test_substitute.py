@@ -570,3 +570,43 @@ def test_vertex_off_its_curves_is_not_followed():
         xyz = lambda K: K[0, :3] / K[0, 3] if K.shape[1] == 4 else K[0]  # noqa: E731
         assert np.linalg.norm(xyz(K) - exact) < 1e-6 * model.diagonal
         assert np.linalg.norm(xyz(F) - exact) > 0.4 * np.linalg.norm(shift)
+
+
+def test_sampled_move_is_measured_from_the_stage1_patch():
+    """The sampled move compares each patch with its stage-1 net as it was: the substitution writes
+    into nets in place where no elevation is needed, and the kept reference moved along with them
+    (on slow_pcurve_box a face reported a sampled move of 0 where its patches moved by 0.135)."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.untrim import untrim
+
+    tol = Tolerances()
+    model = inspect(str(fixture_path("slow_pcurve_box.step")), tol).model
+    result = untrim(model, tol.with_(approx_rel=0.5 * tol.approx_rel))
+    before = [[(p.ctrl.copy(), p.rational) for p in fr.patches] for fr in result.faces]
+    sub = substitute(model, result, tol)
+    for fr, fs, nets in zip(result.faces, sub.faces, before, strict=True):
+        pairs = zip(fr.patches, nets, strict=True)
+        want = max((S._sampled_move(c, r, p.ctrl, p.rational) for p, (c, r) in pairs), default=0.0)
+        assert fs.moved_sampled == pytest.approx(want, rel=1e-12, abs=1e-15)
+    assert max(fs.moved_sampled for fs in sub.faces) > 1e-3 * model.diagonal
+
+
+def test_side_deviations_agree_with_verify():
+    """The per-patch distance of trimming sides from S(pcurve), which I4 uses near repaired loops,
+    is the verify step's side check, patch by patch, and never more than bound + closure."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.occ.build import input_face_areas
+    from watertight_cli.untrim import untrim
+    from watertight_cli.verify import side_deviations, verify_untrim
+
+    tol = Tolerances()
+    ins = inspect(str(fixture_path("filleted_freeform.step")), tol)
+    result = untrim(ins.model, tol)
+    check = verify_untrim(ins.model, result, tol, input_face_areas(ins.shape))
+    assert check.ok
+    for fr, fc in zip(result.faces, check.faces, strict=True):
+        near = side_deviations(fr, ins.model)
+        assert len(near) == len(fr.patches)
+        assert float(near.max(initial=0.0)) == fc.side_deviation
+        for p, d in zip(fr.patches, near, strict=True):
+            assert d <= p.bound + fr.closure + tol.exact_rel * ins.model.diagonal

@@ -313,9 +313,11 @@ def convert(paths, output_dir, stage, max_degree, tolerance, as_json, overwrite,
     anything is written; the file is written atomically (no partial OUT); then it is read
     back and measured: all faces untrimmed Bezier (I1), gaps after at most 1e-12 of the
     diagonal (I2), no new free edges (I3), each face's deviation within the tolerance plus the
-    input's own gap at its edges and at the edges that meet them at a vertex (I4: each patch
-    measured against its stage-1 patch on a 17 x 17 grid plus stage 1's certified bound, or the
-    certified bound of the whole change where that is smaller), kernel validity. A failed
+    input's own gap at its edges, at the edges that meet them at a vertex and at those vertices
+    (I4: each patch measured against its stage-1 patch on a 17 x 17 grid, plus the stage-1
+    patch's certified bound or, near trimming sides that repairs of the input moved, their
+    measured distance from the input's boundary; or the certified bound of the whole change
+    where that is smaller), kernel validity. A failed
     invariant exits 3, with the file written.
 
     The report (stderr table, --json on stdout) gives the gap before and after, T-junctions,

@@ -52,8 +52,10 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
         face = model.faces[fr.face]
         bound = max((p.bound for p in fr.patches), default=0.0) + face.approximation + fr.closure
         # I4 measures: each patch against its stage-1 patch at the same (s, t) on a grid, plus the
-        # stage-1 bound; the certified bound (which sums the steps' bounds) decides where it holds
-        measured = fs.deviation_sampled + face.approximation + fr.closure
+        # stage-1 patch's own deviation (its bound, and near trimming sides that the loop closure
+        # moved, their sampled distance from S(pcurve)); the certified bound (which sums the steps'
+        # bounds and the face's whole closure) decides where it holds
+        measured = fs.deviation_sampled + face.approximation
         deviation = min(bound, measured)
         allowed = allowed_base + input_gap.get(fr.face, 0.0)
         frep.update({

@@ -51,6 +51,7 @@ from .model import Model
 from .tolerances import Tolerances
 from .topology import JOIN_REL, MERGE_REL
 from .untrim import RUNG_SLIDE, Patch, UntrimResult, _deriv_h, _eval, _t_at_u, cell_map
+from .verify import side_deviations
 
 __all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
 
@@ -92,7 +93,10 @@ class FaceSubstitution:
     # largest distance of a patch from its stage-1 patch at the same (s, t), sampled on a grid (the
     # measured counterpart of ``moved``, which sums certified bounds of the successive steps)
     moved_sampled: float = 0.0
-    deviation_sampled: float = 0.0  # per patch, sampled move plus its stage-1 bound; the largest
+    # per patch, the sampled move plus the stage-1 patch's deviation from the input face (its bound,
+    # or where the loop closure moved a trimming side, that side's sampled distance from S(pcurve)
+    # when it is larger, within bound + closure); the largest
+    deviation_sampled: float = 0.0
     elevated: int = 0  # patches whose degree was raised to take a shared curve
     corners_moved: int = 0  # corners moved onto a shared curve in patches with no side there
     problems: list[str] = field(default_factory=list)
@@ -764,7 +768,14 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
         if not curves.decide_midway(e, result.plan.get(e, np.zeros(0))):
             curves.decide(e, uses)
     faces: list[FaceSubstitution] = []
-    stage1 = [[(p.ctrl, p.rational, p.bound) for p in fr.patches] for fr in result.faces]
+    # each stage-1 patch as it is (copies: the substitution writes into the nets it keeps) and its
+    # deviation from the input face: its bound, and where its trimming sides were moved by the loop
+    # closure, their measured distance from S(pcurve), within bound + closure
+    stage1 = []
+    for fr in result.faces:
+        near = side_deviations(fr, model)
+        stage1.append([(p.ctrl.copy(), p.rational, max(p.bound, min(float(d), p.bound + fr.closure)))
+                       for p, d in zip(fr.patches, near, strict=True)])
     for fr, info in zip(result.faces, infos, strict=True):  # pass 2: substitute
         fs = FaceSubstitution(fr.face)
         faces.append(fs)

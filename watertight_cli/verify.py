@@ -28,10 +28,11 @@ from .model import Model
 from .tolerances import Tolerances
 from .untrim import FaceResult, Patch, UntrimResult, cell_map, patch_points
 
-__all__ = ["FaceCheck", "Verification", "verify_untrim", "patch_area"]
+__all__ = ["FaceCheck", "Verification", "verify_untrim", "patch_area", "side_deviations"]
 
 _GRID = 9  # samples per direction for the deviation and fold checks
 _SIDE = 33  # samples along each trimming side
+_SIDE_S = np.linspace(0.0, 1.0, _SIDE)
 _GAUSS = 24  # Gauss-Legendre nodes per direction for areas
 #: relative slack of the area check: OCCT's integrators are off by a few 1e-6 of the area even when
 #: they agree with each other (measured on a face with a pole in gmsh__917_fusee.stp, where our
@@ -119,6 +120,40 @@ def _perimeter(p: Patch) -> float:
                      for row in (C[:, 0], C[:, -1], C[0, :], C[-1, :])))
 
 
+def _trimming_sides(patches: list[Patch]) -> list[tuple[int, object, float]]:
+    """(patch index, side, t) of every side that lies on a pcurve piece (not a pole)."""
+    return [(k, side, t) for k, p in enumerate(patches) for side, t in ((p.bottom, 0.0), (p.top, 1.0))
+            if side.pcurve is not None and not side.degenerate]
+
+
+def _side_uv(sides) -> np.ndarray:
+    """The input's pcurve at ``_SIDE`` parameters per side, w affine over the piece's edge range."""
+    s = _SIDE_S
+    return (np.concatenate([side.pcurve.evaluate(side.w0 + s * (side.w1 - side.w0)) for _, side, _ in sides])
+            if sides else np.zeros((0, 2)))
+
+
+def _side_distances(patches: list[Patch], sides, on_side: np.ndarray) -> list[float]:
+    """Per side: the largest distance between the patch's side and S(pcurve(w)) (``on_side``)."""
+    refs = on_side.reshape(len(sides), _SIDE, 3)
+    side = lambda k, t: patch_points(patches[k], _SIDE_S, np.array([t]))[:, 0, :]  # noqa: E731
+    return [float(np.linalg.norm(side(k, t) - ref, axis=-1).max())
+            for (k, _, t), ref in zip(sides, refs, strict=True)]
+
+
+def side_deviations(fr: FaceResult, model: Model) -> np.ndarray:
+    """Per patch of a stage-1 face, how far its trimming sides lie from the input's boundary
+    S(pcurve(w)), sampled (0 for a patch without one). Where the loop closure moved a side, this
+    is what the move left near it, measured; the face's ``closure`` bounds it for every patch."""
+    out = np.zeros(len(fr.patches))
+    sides = _trimming_sides(fr.patches)
+    if sides:
+        on_side = model.faces[fr.face].surface.evaluate(_side_uv(sides))
+        for (k, _, _), d in zip(sides, _side_distances(fr.patches, sides, on_side), strict=True):
+            out[k] = max(out[k], d)
+    return out
+
+
 def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
                 area_ref: tuple[float, float] | None = None) -> FaceCheck:
     face = model.faces[fr.face]
@@ -126,7 +161,6 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
     slack = tol.exact_rel * model.diagonal
     g = np.linspace(0.0, 1.0, _GRID)
     gi = _GRIDS["interior"]
-    s = np.linspace(0.0, 1.0, _SIDE)
     problems: list[str] = list(fr.problems)
     u0, u1, v0, v1 = face.uv_bounds
     h = 1e-6 * np.array([max(u1 - u0, 1e-300), max(v1 - v0, 1e-300)])
@@ -139,10 +173,8 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
     # evaluator costs more than evaluating it)
     uv_grid = np.stack([cell_map(p, g, g) for p in patches]).reshape(-1, 2) if patches else np.zeros((0, 2))
     uv_in = np.stack([cell_map(p, gi, gi) for p in patches]).reshape(-1, 2) if patches else np.zeros((0, 2))
-    sides = [(k, side, t) for k, p in enumerate(patches) for side, t in ((p.bottom, 0.0), (p.top, 1.0))
-             if side.pcurve is not None and not side.degenerate]
-    uv_side = (np.concatenate([side.pcurve.evaluate(side.w0 + s * (side.w1 - side.w0))
-                               for _, side, _ in sides]) if sides else np.zeros((0, 2)))
+    sides = _trimming_sides(patches)
+    uv_side = _side_uv(sides)
     ev = surf.evaluate(np.concatenate([uv_grid, uv_side, uv_in + [h[0], 0], uv_in - [h[0], 0],
                                        uv_in + [0, h[1]], uv_in - [0, h[1]]]))
     n1, n2 = len(uv_grid), len(uv_side)
@@ -181,9 +213,8 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
         # a boundary that moves by the bound sweeps at most perimeter x bound of area
         swept += _perimeter(p) * (p.bound + fr.closure)
     # trimming sides against S(pcurve(w))
-    for (k, side, t), ref in zip(sides, on_side, strict=True):
+    for (k, side, _), d in zip(sides, _side_distances(patches, sides, on_side), strict=True):
         p = patches[k]
-        d = float(np.max(np.linalg.norm(patch_points(p, s, np.array([t]))[:, 0, :] - ref, axis=-1)))
         side_dev = max(side_dev, d)
         if d > p.bound + fr.closure + slack:
             problems.append(f"face {fr.face} patch {k}: side on edge {side.edge} is {d:.3g} from "
