@@ -130,17 +130,24 @@ def edge_gaps(model: Model, tracks: Tracks) -> list[EdgeGap]:
     return out
 
 
+#: a vertex is an outlier when the centre of the other points is this much nearer to all of them
+_OUTLIER = 0.25
+
+
 def vertex_corners(model: Model, eps: float) -> tuple[np.ndarray, np.ndarray]:
     """Where the patch corners at each vertex go, and the input's own gap there.
 
     The input offers several points for a vertex: its own point, the ends of the edge curves
     that meet there, and each face's surface(pcurve) at those ends. The corner is the vertex's
-    point, unless the centre of the bounding box of the other points is nearer to all of them by
-    more than ``eps``: a vertex the kernel stores off its curves would otherwise drag every corner
-    onto it and shear each curve that ends there (in gmsh__917_fusee.stp one vertex stands 0.0099
-    from its three curve ends, which agree to 1e-13, and its faces moved by twice their edges'
-    gap). Returns (points (k, 3), gap (k,)): gap is the largest distance from the chosen point to
-    any of those points, how far a corner there must move at least (0 where nothing ends).
+    point, unless the vertex stands off all the others by more than ``eps`` (the tolerance) while
+    they agree among themselves: the centre of their bounding box is within ``_OUTLIER`` of that
+    distance from all of them. Such a vertex would otherwise drag every corner onto it and shear
+    each curve that ends there (in gmsh__917_fusee.stp one vertex stands 0.0099 from its three
+    curve ends, which agree to 1e-13, and its faces moved by twice their edges' gap). A vertex on
+    one of the ends stays (moving it to the middle halves the largest move but shears every curve
+    there: on gmsh__Block.stp and gmsh__U_Joint_2.stp that opened gaps and free edges elsewhere).
+    Returns (points (k, 3), gap (k,)): gap is the largest distance from the chosen point to any
+    of those points, how far a corner there must move at least (0 where nothing ends).
     """
     points = np.array(model.vertices, dtype=float, copy=True)
     gap = np.zeros(len(points))
@@ -167,7 +174,8 @@ def vertex_corners(model: Model, eps: float) -> tuple[np.ndarray, np.ndarray]:
         centre = 0.5 * (E.min(axis=0) + E.max(axis=0))
         off_vertex = float(np.linalg.norm(E - points[v], axis=1).max())
         off_centre = float(np.linalg.norm(E - centre, axis=1).max())
-        if off_centre < off_vertex - eps:
+        outlier = off_vertex > eps and off_centre <= _OUTLIER * off_vertex
+        if outlier:
             points[v] = centre
-        gap[v] = min(off_vertex, off_centre)
+        gap[v] = off_centre if outlier else off_vertex
     return points, gap

@@ -142,7 +142,7 @@ def _local_input_gaps(model, gaps, tol: Tolerances) -> dict[int, float]:
 
     edge_gap = {g.edge: g.gap for g in gaps}
     # a corner at a vertex also moves by the distance of its point from the curve ends there
-    vertex_gap: dict[int, float] = dict(enumerate(vertex_corners(model, tol.exact_rel * model.diagonal)[1]))
+    vertex_gap: dict[int, float] = dict(enumerate(vertex_corners(model, tol.approx_rel * model.diagonal)[1]))
     for e in model.edges:
         for v in e.vertices:
             vertex_gap[v] = max(vertex_gap.get(v, 0.0), edge_gap.get(e.index, 0.0))

@@ -733,7 +733,7 @@ def _homog(K: np.ndarray) -> np.ndarray:
 def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=None) -> Substitution:
     """Put the shared curves into every patch of ``result`` (in place); returns what changed."""
     curves = _Curves(model, _POLY_REL * tol.approx_rel * model.diagonal, tol.max_degree,
-                     vertex_corners(model, tol.exact_rel * model.diagonal)[0])
+                     vertex_corners(model, tol.approx_rel * model.diagonal)[0])
     infos = []
     users: dict[tuple, list[np.ndarray]] = {}
     corner_uses: dict[tuple, int] = {}
