@@ -106,14 +106,24 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
 
         return finish(ins, result, report, tol, src, dst, progress, overwrite, fast, keep)
     if dst is not None:
+        from .topology import JOIN_REL, flat
+
         t = time.perf_counter()
         tick = progress("build", len(result.patches)) if progress else None
         faces = []
+        dropped = 0
         for p in result.patches:
-            faces.append(patch_face(p.ctrl, p.rational, model.faces[p.face].reversed))
+            # a patch without area (every row one point: a cell between coinciding sides) is not a
+            # face; written, the STEP reader rebuilt its pcurves across it (U_Joint_2: 4 trimmed
+            # read-back faces). A full conversion drops the same patches when it joins them.
+            if flat(p.ctrl, p.rational, JOIN_REL * model.diagonal):
+                dropped += 1
+            else:
+                faces.append(patch_face(p.ctrl, p.rational, model.faces[p.face].reversed))
             if tick is not None:
                 tick(1)
         write_shape(open_shell(faces), dst, overwrite=overwrite)
+        report["faces_written"], report["flat_patches_dropped"] = len(faces), dropped
         times["write"] = time.perf_counter() - t
     report["timings"] = times
     return report
