@@ -608,5 +608,6 @@ def test_side_deviations_agree_with_verify():
         near = side_deviations(fr, ins.model)
         assert len(near) == len(fr.patches)
         assert float(near.max(initial=0.0)) == fc.side_deviation
+        np.testing.assert_array_equal(near, fc.side_per_patch)  # what stage 2 is handed
         for p, d in zip(fr.patches, near, strict=True):
             assert d <= p.bound + fr.closure + tol.exact_rel * ins.model.diagonal

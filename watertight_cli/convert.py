@@ -104,7 +104,8 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
     if stage == "full":
         from .stage2 import finish
 
-        return finish(ins, result, report, tol, src, dst, progress, overwrite, fast, keep)
+        return finish(ins, result, report, tol, src, dst, progress, overwrite, fast, keep,
+                      [fc.side_per_patch for fc in check.faces])
     if dst is not None:
         from .topology import JOIN_REL, flat
 

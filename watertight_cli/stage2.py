@@ -19,7 +19,7 @@ from .tolerances import Tolerances
 
 
 def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None, progress,
-           overwrite: bool, fast: bool, keep: dict | None = None) -> dict:
+           overwrite: bool, fast: bool, keep: dict | None = None, near: list | None = None) -> dict:
     from .occ.assemble import input_groups, is_valid, join, volume
     from .occ.io import write_shape
     from .report import edge_gap_rows
@@ -31,7 +31,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     solid_faces = [i for faces, solid in input_groups(ins.shape) if solid for i in faces]
     vol_in = _patch_volume(model, result, solid_faces) if model.solids else None
     tick = progress("substitute", len(model.faces)) if progress else None
-    sub = substitute(model, result, tol, tick)
+    sub = substitute(model, result, tol, tick, near)
     times["substitute"] = time.perf_counter() - t
 
     t = time.perf_counter()

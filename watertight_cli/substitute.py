@@ -730,8 +730,11 @@ def _homog(K: np.ndarray) -> np.ndarray:
     return K if K.shape[1] == 4 else np.concatenate([K, np.ones((K.shape[0], 1))], axis=1)
 
 
-def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=None) -> Substitution:
-    """Put the shared curves into every patch of ``result`` (in place); returns what changed."""
+def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=None,
+               near: list[np.ndarray] | None = None) -> Substitution:
+    """Put the shared curves into every patch of ``result`` (in place); returns what changed.
+    ``near``: per face of ``result``, the verify step's ``side_per_patch`` (measured here when
+    None)."""
     curves = _Curves(model, _POLY_REL * tol.approx_rel * model.diagonal, tol.max_degree,
                      vertex_corners(model, tol.approx_rel * model.diagonal)[0])
     infos = []
@@ -771,11 +774,11 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
     # each stage-1 patch as it is (copies: the substitution writes into the nets it keeps) and its
     # deviation from the input face: its bound, and where its trimming sides were moved by the loop
     # closure, their measured distance from S(pcurve), within bound + closure
-    stage1 = []
-    for fr in result.faces:
-        near = side_deviations(fr, model)
-        stage1.append([(p.ctrl.copy(), p.rational, max(p.bound, min(float(d), p.bound + fr.closure)))
-                       for p, d in zip(fr.patches, near, strict=True)])
+    if near is None:
+        near = [side_deviations(fr, model) for fr in result.faces]
+    stage1 = [[(p.ctrl.copy(), p.rational, max(p.bound, min(float(d), p.bound + fr.closure)))
+               for p, d in zip(fr.patches, sides, strict=True)]
+              for fr, sides in zip(result.faces, near, strict=True)]
     for fr, info in zip(result.faces, infos, strict=True):  # pass 2: substitute
         fs = FaceSubstitution(fr.face)
         faces.append(fs)

@@ -57,6 +57,9 @@ class FaceCheck:
     folded: int  # patches whose normal turns against the surface's
     collapsed_rungs: int  # cells with a rung of zero length that is not at a pole
     problems: list[str] = field(default_factory=list)
+    # per patch, the largest distance of its trimming sides from S(pcurve) (0 without one); stage 2
+    # takes it as the stage-1 patch's own deviation near sides that the loop closure moved
+    side_per_patch: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def ok(self) -> bool:
@@ -144,7 +147,8 @@ def _side_distances(patches: list[Patch], sides, on_side: np.ndarray) -> list[fl
 def side_deviations(fr: FaceResult, model: Model) -> np.ndarray:
     """Per patch of a stage-1 face, how far its trimming sides lie from the input's boundary
     S(pcurve(w)), sampled (0 for a patch without one). Where the loop closure moved a side, this
-    is what the move left near it, measured; the face's ``closure`` bounds it for every patch."""
+    is what the move left near it, measured; the face's ``closure`` bounds it for every patch.
+    The verify step records the same per patch (``FaceCheck.side_per_patch``)."""
     out = np.zeros(len(fr.patches))
     sides = _trimming_sides(fr.patches)
     if sides:
@@ -213,9 +217,11 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
         # a boundary that moves by the bound sweeps at most perimeter x bound of area
         swept += _perimeter(p) * (p.bound + fr.closure)
     # trimming sides against S(pcurve(w))
+    per_patch = np.zeros(len(patches))
     for (k, side, _), d in zip(sides, _side_distances(patches, sides, on_side), strict=True):
         p = patches[k]
         side_dev = max(side_dev, d)
+        per_patch[k] = max(per_patch[k], d)
         if d > p.bound + fr.closure + slack:
             problems.append(f"face {fr.face} patch {k}: side on edge {side.edge} is {d:.3g} from "
                             f"S(pcurve), bound {p.bound + fr.closure:.3g}")
@@ -231,7 +237,7 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
     if not fr.patches and not fr.problems:
         problems.append(f"face {fr.face}: no patches")
     return FaceCheck(fr.face, len(fr.patches), fr.bound, dev, side_dev, area_in, area_out, folded,
-                     collapsed, problems)
+                     collapsed, problems, per_patch)
 
 
 def verify_untrim(model: Model, result: UntrimResult, tol: Tolerances,
