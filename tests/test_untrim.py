@@ -390,3 +390,30 @@ def test_slab_lines_closer_than_a_sliver_in_3d_merge():
     out = _merge_thin(lines, {0.5 + 5e-6}, face, g)
     # 0.5 and 0.5 + 5e-6 are 5e-9 apart at most: merged, the knot line kept; 1e-4 -> 1e-7: kept
     np.testing.assert_array_equal(out, [0.2, 0.5 + 5e-6, 0.5 + 1e-4])
+
+
+def test_pcurve_end_near_a_rung_end_cuts_the_cell_only_there():
+    """A pcurve end inside a neighbouring cell's rung a hair from its end cuts that cell along the
+    v-iso line through it (gmsh__U_Joint_2.stp: a degenerate edge starts at 5.6e-5 of a rung's
+    height from its top, and stage 2 moved that end by the input's 1.9e-5 gap; no polynomial of the
+    degree budget bends the long rung so near its end, and 24 edges stayed free). An end near the
+    middle is left to stage 2's bend, and a cut that would cross the cell's top is not made."""
+    from watertight_cli.untrim import _NEAR_END, _vertex_cuts
+
+    left, right = (np.array([0.0, 0.0]), np.array([0.0, 1.0])), (np.array([1.0, 0.2]), np.array([1.0, 1.0]))
+    ueps = veps = 1e-9
+    near = np.array([[0.0, 0.99994]])
+    assert _vertex_cuts([0.5], near, left, right, 0.2, 1.0, ueps, veps, _NEAR_END) == [0.5, 0.99994]
+    # near the bottom of the other rung (which starts at 0.2, the bottom's highest end) ...
+    assert _vertex_cuts([], np.array([[1.0, 0.201]]), left, right, 0.2, 1.0, ueps, veps,
+                        _NEAR_END) == [0.201]
+    # ... but not where the bottom rises above the line somewhere across the cell
+    assert _vertex_cuts([], np.array([[1.0, 0.201]]), left, right, 0.3, 1.0, ueps, veps, _NEAR_END) == []
+    assert _vertex_cuts([], np.array([[1.0, 0.9999]]), left, right, 0.2, 1.0, ueps, veps,
+                        _NEAR_END) == [0.9999]
+    # in the middle of the rung: no cut (stage 2 bends the rung through it)
+    assert _vertex_cuts([], np.array([[0.0, 0.5]]), left, right, 0.2, 1.0, ueps, veps, _NEAR_END) == []
+    # the top runs down to 0.9 across the cell: an iso line at 0.99994 would cross it
+    assert _vertex_cuts([], near, left, right, 0.2, 0.9, ueps, veps, _NEAR_END) == []
+    # off both rungs: nothing
+    assert _vertex_cuts([], np.array([[0.5, 0.99994]]), left, right, 0.2, 1.0, ueps, veps, _NEAR_END) == []

@@ -63,6 +63,12 @@ _RUNG_CUTS = ("plan", "vertices", "none")
 #: share of the tolerance by which a rung may slide along its side when it takes an edge's curve whose
 #: parameter is not affine in v (stage 2, ``substitute._rung_ref``); the move enters the bound
 RUNG_SLIDE = 0.1
+#: a pcurve end inside a neighbouring cell's rung closer than this share of the rung's height to
+#: its end cuts that cell along the v-iso line through it, where the line stays between the cell's
+#: bottom and top. Stage 2 moves such an end onto the edge's curve (by the input's gap there) and
+#: would have to bend the long rung through it: a polynomial within degree 25 that moves one
+#: point a hair from an end bulges more than twice that move (``substitute._bump``, at 0.0095)
+_NEAR_END = 0.02
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
@@ -529,6 +535,11 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             if rung_cuts == "plan" or abs(w - lo) <= tol_w or abs(w - hi) <= tol_w:
                 vertex_ends.append((q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]))
     vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
+    # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
+    # inside a neighbouring cell's rung a hair from its end: see _NEAR_END
+    near_ends = np.array([] if rung_cuts == "none" else
+                         [(q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2])
+                          for sp in slabs for q in sp for k in (0, -1)]).reshape(-1, 2)
     for j, sp in enumerate(slabs):
         if not sp:
             continue
@@ -558,15 +569,19 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
             t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
             knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bmin, tmax, ueps, veps)
+            bmax = float(max(bot.H[0, 1] / bot.H[0, 2], bot.H[-1, 1] / bot.H[-1, 2]))
+            tmin = float(min(top.H[0, 1] / top.H[0, 2], top.H[-1, 1] / top.H[-1, 2]))
+            knots = _vertex_cuts(knots, near_ends, (b0, t0), (b1, t1), bmax, tmin, ueps, veps, _NEAR_END)
             sides = [bside] + [_iso_side(_rung_u(b0, t0, c), _rung_u(b1, t1, c), c) for c in knots] + [tside]
             for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
                 yield ua, ubb, s0, s1
 
 
 def _vertex_cuts(knots: list[float], ends: np.ndarray, left, right, bmin: float, tmax: float,
-                 ueps: float, veps: float) -> list[float]:
+                 ueps: float, veps: float, near: float = 0.5) -> list[float]:
     """A cell's knot lines plus the v of every vertex in ``ends`` that lies on one of its rungs
-    strictly inside it; values closer than ``veps`` merge (a knot line wins)."""
+    strictly inside it, within ``near`` (share of the rung's height) of one of its ends, and
+    between ``bmin`` and ``tmax``; values closer than ``veps`` merge (a knot line wins)."""
     if len(ends) == 0:
         return knots
     extra = []
@@ -576,6 +591,8 @@ def _vertex_cuts(knots: list[float], ends: np.ndarray, left, right, bmin: float,
         lo, hi = min(b[1], t[1]), max(b[1], t[1])
         v = ends[:, 1]
         on = (np.abs(ends[:, 0] - b[0]) <= 2 * ueps) & (v > lo + veps) & (v < hi - veps)
+        if near < 0.5:
+            on &= np.minimum(v - lo, hi - v) < near * (hi - lo)
         extra.extend(float(x) for x in v[on] if bmin + veps < x < tmax - veps)
     if not extra:
         return knots
