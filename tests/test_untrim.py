@@ -392,28 +392,38 @@ def test_slab_lines_closer_than_a_sliver_in_3d_merge():
     np.testing.assert_array_equal(out, [0.2, 0.5 + 5e-6, 0.5 + 1e-4])
 
 
-def test_pcurve_end_near_a_rung_end_cuts_the_cell_only_there():
+def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
     """A pcurve end inside a neighbouring cell's rung a hair from its end cuts that cell along the
     v-iso line through it (gmsh__U_Joint_2.stp: a degenerate edge starts at 5.6e-5 of a rung's
     height from its top, and stage 2 moved that end by the input's 1.9e-5 gap; no polynomial of the
-    degree budget bends the long rung so near its end, and 24 edges stayed free). An end near the
-    middle is left to stage 2's bend, and a cut that would cross the cell's top is not made."""
-    from watertight_cli.untrim import _NEAR_END, _vertex_cuts
+    degree budget bends the long rung so near its end, and 24 edges stayed free). The cut spreads
+    to the next cell while it lands near a rung's end there; an end near the middle is left to
+    stage 2's bend, a cut that would cross a cell's bottom or top is not made, and ends are
+    matched to rungs by their slab line."""
+    from watertight_cli.untrim import _near_end_cuts
 
-    left, right = (np.array([0.0, 0.0]), np.array([0.0, 1.0])), (np.array([1.0, 0.2]), np.array([1.0, 1.0]))
-    ueps = veps = 1e-9
-    near = np.array([[0.0, 0.99994]])
-    assert _vertex_cuts([0.5], near, left, right, 0.2, 1.0, ueps, veps, _NEAR_END) == [0.5, 0.99994]
-    # near the bottom of the other rung (which starts at 0.2, the bottom's highest end) ...
-    assert _vertex_cuts([], np.array([[1.0, 0.201]]), left, right, 0.2, 1.0, ueps, veps,
-                        _NEAR_END) == [0.201]
-    # ... but not where the bottom rises above the line somewhere across the cell
-    assert _vertex_cuts([], np.array([[1.0, 0.201]]), left, right, 0.3, 1.0, ueps, veps, _NEAR_END) == []
-    assert _vertex_cuts([], np.array([[1.0, 0.9999]]), left, right, 0.2, 1.0, ueps, veps,
-                        _NEAR_END) == [0.9999]
-    # in the middle of the rung: no cut (stage 2 bends the rung through it)
-    assert _vertex_cuts([], np.array([[0.0, 0.5]]), left, right, 0.2, 1.0, ueps, veps, _NEAR_END) == []
-    # the top runs down to 0.9 across the cell: an iso line at 0.99994 would cross it
-    assert _vertex_cuts([], near, left, right, 0.2, 0.9, ueps, veps, _NEAR_END) == []
-    # off both rungs: nothing
-    assert _vertex_cuts([], np.array([[0.5, 0.99994]]), left, right, 0.2, 1.0, ueps, veps, _NEAR_END) == []
+    veps = 1e-9
+
+    def cell(j, u0, u1, bottom, top, bmax=None, tmin=None):
+        left = (np.array([u0, bottom[0]]), np.array([u0, top[0]]))
+        right = (np.array([u1, bottom[1]]), np.array([u1, top[1]]))
+        return [u0, u1, None, None, left, right, max(bottom) if bmax is None else bmax,
+                min(top) if tmin is None else tmin, [], j]
+
+    # three slabs side by side, 0..1 in v; an end on line 1 (between slab 0 and slab 1) near v = 1
+    cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0)),
+             cell(2, 2.0, 3.0, (0.0, 0.0), (1.0, 1.0))]
+    _near_end_cuts(cells, [(1, 0.99994)], veps)
+    assert [c[8] for c in cells] == [[0.99994]] * 3  # spread across the face
+    # in the middle of the rung: nothing
+    cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0))]
+    _near_end_cuts(cells, [(1, 0.5)], veps)
+    assert cells[0][8] == []
+    # the top runs down to 0.9 across the second cell: the line stops before it
+    cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 0.9))]
+    _near_end_cuts(cells, [(0, 0.99994)], veps)
+    assert [c[8] for c in cells] == [[0.99994], []]
+    # an end on another line than the rung's (a slab narrower than the clustering distance)
+    cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0))]
+    _near_end_cuts(cells, [(2, 0.99994)], veps)
+    assert cells[0][8] == []

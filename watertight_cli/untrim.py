@@ -537,9 +537,9 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
     # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
     # inside a neighbouring cell's rung a hair from its end: see _NEAR_END
-    near_ends = np.array([] if rung_cuts == "none" else
-                         [(q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2])
-                          for sp in slabs for q in sp for k in (0, -1)]).reshape(-1, 2)
+    near_ends = [] if rung_cuts == "none" else [
+        (j + k, float(q.H[-k, 1] / q.H[-k, 2])) for j, sp in enumerate(slabs) for q in sp for k in (0, 1)]
+    cells = []
     for j, sp in enumerate(slabs):
         if not sp:
             continue
@@ -561,27 +561,68 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             # their v-extrema), so their ends give their v-range exactly (the control polygon can
             # overshoot it), and they never cross a knot line: c may touch B or T at one end only,
             # which leaves a cell with one collapsed rung.
-            bmin = float(min(bot.H[0, 1] / bot.H[0, 2], bot.H[-1, 1] / bot.H[-1, 2]))
-            tmax = float(max(top.H[0, 1] / top.H[0, 2], top.H[-1, 1] / top.H[-1, 2]))
-            knots = [float(c) for c in vb[1:-1] if bmin + veps < c < tmax - veps]
+            bv, tv = (sorted(float(q.H[i, 1] / q.H[i, 2]) for i in (0, -1)) for q in (bot, top))
+            knots = [float(c) for c in vb[1:-1] if bv[0] + veps < c < tv[1] - veps]
             # the knot lines run between the cell's rungs (the straight segments joining the ends
             # of bottom and top), which may stand a sliver off the slab lines
             b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
             t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
-            knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bmin, tmax, ueps, veps)
-            bmax = float(max(bot.H[0, 1] / bot.H[0, 2], bot.H[-1, 1] / bot.H[-1, 2]))
-            tmin = float(min(top.H[0, 1] / top.H[0, 2], top.H[-1, 1] / top.H[-1, 2]))
-            knots = _vertex_cuts(knots, near_ends, (b0, t0), (b1, t1), bmax, tmin, ueps, veps, _NEAR_END)
-            sides = [bside] + [_iso_side(_rung_u(b0, t0, c), _rung_u(b1, t1, c), c) for c in knots] + [tside]
-            for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
-                yield ua, ubb, s0, s1
+            knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
+            cells.append([ua, ubb, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j])
+    _near_end_cuts(cells, near_ends, veps)
+    for ua, ubb, bside, tside, left, right, _, _, knots, _ in cells:
+        sides = ([bside] + [_iso_side(_rung_u(*left, c), _rung_u(*right, c), c) for c in knots] + [tside])
+        for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
+            yield ua, ubb, s0, s1
+
+
+def _near_end_cuts(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
+    """Add to each cell's cuts the v of every point of ``ends`` (slab line index, v) strictly inside
+    one of its rungs within _NEAR_END of that rung's end, where the v-iso line stays between the
+    cell's bottom and top. A cut puts a new point on the cell's other rung, which may fall near the
+    end of the rung beside it in turn: the cuts spread from cell to cell until none is. Points
+    are matched to rungs by their slab line, not by their u: a slab narrower than the lines'
+    clustering distance would otherwise lend its corners to the rungs of the line beside it.
+    ``cells`` holds [ua, ub, bottom, top, left rung, right rung, highest bottom v, lowest top v,
+    cuts, slab index]."""
+    pending = ends
+    for _ in range(len(cells) + 1):
+        if not pending:
+            return
+        by_line: dict[int, list[float]] = {}
+        for line, v in pending:
+            by_line.setdefault(line, []).append(v)
+        pending = []
+        for cell in cells:
+            left, right, bmax, tmin, knots, j = cell[4:]
+            extra = []
+            for line, (b, t) in ((j, left), (j + 1, right)):
+                lo, hi = min(b[1], t[1]), max(b[1], t[1])
+                extra.extend(v for v in by_line.get(line, ()) if lo + veps < v < hi - veps
+                             and min(v - lo, hi - v) < _NEAR_END * (hi - lo)
+                             and bmax + veps < v < tmin - veps)
+            if extra:
+                cuts = _merge_cuts(knots, extra, veps)
+                pending.extend((line, c) for c in set(cuts) - set(knots) for line in (j, j + 1))
+                cell[8] = cuts
+
+
+def _merge_cuts(knots: list[float], extra: list[float], veps: float) -> list[float]:
+    """The sorted cuts ``knots`` + ``extra``; values closer than ``veps`` merge (a knot line wins)."""
+    out: list[float] = []
+    for v in sorted(set(knots) | set(extra)):
+        if out and v - out[-1] <= veps:
+            if v in knots and out[-1] not in knots:
+                out[-1] = v
+            continue
+        out.append(v)
+    return out
 
 
 def _vertex_cuts(knots: list[float], ends: np.ndarray, left, right, bmin: float, tmax: float,
-                 ueps: float, veps: float, near: float = 0.5) -> list[float]:
+                 ueps: float, veps: float) -> list[float]:
     """A cell's knot lines plus the v of every vertex in ``ends`` that lies on one of its rungs
-    strictly inside it, within ``near`` (share of the rung's height) of one of its ends, and
-    between ``bmin`` and ``tmax``; values closer than ``veps`` merge (a knot line wins)."""
+    strictly inside it; values closer than ``veps`` merge (a knot line wins)."""
     if len(ends) == 0:
         return knots
     extra = []
@@ -591,19 +632,8 @@ def _vertex_cuts(knots: list[float], ends: np.ndarray, left, right, bmin: float,
         lo, hi = min(b[1], t[1]), max(b[1], t[1])
         v = ends[:, 1]
         on = (np.abs(ends[:, 0] - b[0]) <= 2 * ueps) & (v > lo + veps) & (v < hi - veps)
-        if near < 0.5:
-            on &= np.minimum(v - lo, hi - v) < near * (hi - lo)
         extra.extend(float(x) for x in v[on] if bmin + veps < x < tmax - veps)
-    if not extra:
-        return knots
-    out: list[float] = []
-    for v in sorted(set(knots) | set(extra)):
-        if out and v - out[-1] <= veps:
-            if v in knots and out[-1] not in knots:
-                out[-1] = v
-            continue
-        out.append(v)
-    return out
+    return _merge_cuts(knots, extra, veps) if extra else knots
 
 
 def _rung_u(b: np.ndarray, t: np.ndarray, c: float) -> float:
