@@ -569,6 +569,11 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
             knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
             cells.append([ua, ubb, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j])
+    if rung_cuts != "none":
+        # the cuts made so far end on both rungs of their cells: those ends may fall near the end
+        # of a neighbour's rung too (fusee face 37: a vertex cut beside a rung 1.77 long, 0.0086
+        # of it from its end, and the bend refused left a free edge)
+        near_ends += [(c[9] + k, v) for c in cells for v in c[8] for k in (0, 1)]
     _near_end_cuts(cells, near_ends, veps)
     for ua, ubb, bside, tside, left, right, _, _, knots, _ in cells:
         sides = ([bside] + [_iso_side(_rung_u(*left, c), _rung_u(*right, c), c) for c in knots] + [tside])
