@@ -399,7 +399,8 @@ def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
     degree budget bends the long rung so near its end, and 24 edges stayed free). The cut spreads
     to the next cell while it lands near a rung's end there; an end near the middle is left to
     stage 2's bend, a cut that would cross a cell's bottom or top is not made, and ends are
-    matched to rungs by their slab line."""
+    matched to rungs by their slab line. Rung pieces that overlap out of step across a line are
+    cut (fusee faces 93 and 165 had 6 free edges there)."""
     from watertight_cli.untrim import _near_end_cuts
 
     veps = 1e-9
@@ -427,3 +428,14 @@ def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0))]
     _near_end_cuts(cells, [(2, 0.99994)], veps)
     assert cells[0][8] == []
+    # rung pieces out of step across a line (cut at 0.6 on one side, 0.4 on the other): the
+    # pieces [0, 0.6] and [0.4, 1] overlap and neither holds the other, so both are cut
+    cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0))]
+    cells[0][8], cells[1][8] = [0.6], [0.4]
+    _near_end_cuts(cells, [], veps)
+    assert [c[8] for c in cells] == [[0.4, 0.6], [0.4, 0.6]]
+    # a long piece that holds the other side's pieces is left to stage 2 (a T-vertex)
+    cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0))]
+    cells[1][8] = [0.4]
+    _near_end_cuts(cells, [], veps)
+    assert [c[8] for c in cells] == [[], [0.4]]

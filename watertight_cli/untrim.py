@@ -40,6 +40,7 @@ step can compare the patch with S(phi) evaluated independently.
 
 from __future__ import annotations
 
+import bisect
 import time
 from dataclasses import dataclass, field, replace
 
@@ -582,34 +583,74 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
 
 
 def _near_end_cuts(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
-    """Add to each cell's cuts the v of every point of ``ends`` (slab line index, v) strictly inside
-    one of its rungs within _NEAR_END of that rung's end, where the v-iso line stays between the
-    cell's bottom and top. A cut puts a new point on the cell's other rung, which may fall near the
-    end of the rung beside it in turn: the cuts spread from cell to cell until none is. Points
-    are matched to rungs by their slab line, not by their u: a slab narrower than the lines'
-    clustering distance would otherwise lend its corners to the rungs of the line beside it.
-    ``cells`` holds [ua, ub, bottom, top, left rung, right rung, highest bottom v, lowest top v,
-    cuts, slab index]."""
+    """Cut cells along v-iso lines (where the line stays between the cell's bottom and top) so
+    that stage 2 can make the patch sides along each slab line meet:
+
+    - at every point of ``ends`` (slab line index, v) strictly inside one of the cell's rung
+      pieces (its rung between its cuts) within _NEAR_END of that piece's end;
+    - where a rung piece and a piece on the other side of the line overlap with neither holding
+      the other (fusee faces 93 and 165: the cuts at a boundary edge's plan points met a thin
+      slab's rungs out of step, and stage 2 shares a side only with a side that holds it), at the
+      other piece's end inside this one.
+
+    A cut puts a new point on the cell's other rung, which may call for a cut of the cell beside it
+    in turn: the cuts spread from cell to cell until none is needed. Points are matched to rungs by
+    their slab line, not by their u: a slab narrower than the lines' clustering distance would
+    otherwise lend its corners to the rungs of the line beside it. ``cells`` holds [ua, ub, bottom,
+    top, left rung, right rung, highest bottom v, lowest top v, cuts, slab index]."""
     pending = ends
-    for _ in range(len(cells) + 1):
-        if not pending:
-            return
+    for _ in range(4 * len(cells) + 1):
+        # each cell's rung pieces per (line, side of the line the cell lies on: 1 right, 0 left)
+        subs = []
+        pieces: dict[tuple[int, int], list[tuple[float, float]]] = {}
+        for cell in cells:
+            left, right, _, _, cuts, j = cell[4:]
+            sub = []
+            for line, side, (b, t) in ((j, 1, left), (j + 1, 0, right)):
+                lo, hi = min(b[1], t[1]), max(b[1], t[1])
+                if hi - lo <= veps:
+                    continue
+                pts = [lo] + [c for c in cuts if lo + veps < c < hi - veps] + [hi]
+                sub.append((line, side, pts))
+                pieces.setdefault((line, side), []).extend(zip(pts[:-1], pts[1:], strict=True))
+            subs.append(sub)
+        index = {}
+        for key, ps in pieces.items():
+            ps.sort()
+            index[key] = (np.array([p for p, _ in ps]), np.array([q for _, q in ps]))
         by_line: dict[int, list[float]] = {}
         for line, v in pending:
             by_line.setdefault(line, []).append(v)
         pending = []
-        for cell in cells:
-            left, right, bmax, tmin, knots, j = cell[4:]
+        for cell, sub in zip(cells, subs, strict=True):
             extra = []
-            for line, (b, t) in ((j, left), (j + 1, right)):
-                lo, hi = min(b[1], t[1]), max(b[1], t[1])
-                extra.extend(v for v in by_line.get(line, ()) if lo + veps < v < hi - veps
-                             and min(v - lo, hi - v) < _NEAR_END * (hi - lo)
-                             and bmax + veps < v < tmin - veps)
+            for line, side, pts in sub:
+                for v in by_line.get(line, ()):
+                    k = bisect.bisect_left(pts, v)
+                    if 0 < k < len(pts):
+                        p, q = pts[k - 1], pts[k]
+                        if p + veps < v < q - veps and min(v - p, q - v) < _NEAR_END * (q - p):
+                            extra.append(v)
+                if (line, 1 - side) not in index:
+                    continue
+                starts, stops = index[(line, 1 - side)]
+                for p, q in zip(pts[:-1], pts[1:], strict=True):
+                    for e in (p, q):
+                        # the other side's piece that holds this end strictly inside
+                        k = int(np.searchsorted(starts, e - veps)) - 1
+                        if k < 0 or not (starts[k] < e - veps and stops[k] > e + veps):
+                            continue
+                        x = stops[k] if e == p else starts[k]  # its end on this piece's side
+                        if min(p, q) + veps < x < max(p, q) - veps:
+                            extra.append(float(x))
+            bmax, tmin, knots = cell[6], cell[7], cell[8]
+            extra = [v for v in extra if bmax + veps < v < tmin - veps]
             if extra:
                 cuts = _merge_cuts(knots, extra, veps)
-                pending.extend((line, c) for c in set(cuts) - set(knots) for line in (j, j + 1))
+                pending.extend((line, c) for c in set(cuts) - set(knots) for line in (cell[9], cell[9] + 1))
                 cell[8] = cuts
+        if not pending:
+            return
 
 
 def _merge_cuts(knots: list[float], extra: list[float], veps: float) -> list[float]:
