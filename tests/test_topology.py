@@ -207,3 +207,23 @@ def test_a_tiny_patch_closed_on_itself_is_a_needle_to_drop():
         nets = [(needle, False), (square, False)]
         topo = connect(nets, eps)
         assert stray_needles(topo, nets, eps) == ({0} if dropped else set())
+
+
+def test_a_tiny_patch_that_is_a_curve_is_a_needle():
+    """A patch whose two collapsed sides leave two sides that run together (gmsh__U_Joint_2.stp:
+    3.6e-6 long, 1.4e-11 apart) encloses nothing and is dropped; a tiny triangle, or a curve-like
+    patch larger than the needle size, is kept."""
+    from watertight_cli.topology import needle
+
+    eps = 1e-7
+    P, C, Q = np.zeros(3), np.array([3.6e-6, 0.0, 0.0]), np.array([1.8e-6, 1.0e-6, 0.0])
+    net = np.array([[P, C], [C, C]])  # bottom P -> C, left P -> C, right and top one point
+    assert needle(net, False, eps)
+    # the same with a bent middle row (degree 2): both live sides follow it, still a curve
+    net2 = np.array([[P, 0.5 * (P + C), C], [C, C, C]])
+    assert needle(net2, False, eps)
+    assert not needle(np.array([[P, Q], [C, C]]), False, eps)  # a triangle with area
+    big = np.array([[P, C * 1e3], [C * 1e3, C * 1e3]])  # a curve, but 3.6 mm long
+    assert not needle(big, False, eps)
+    # rational: weights do not change the verdict
+    assert needle(np.concatenate([net * 2.0, np.full((2, 2, 1), 2.0)], axis=-1), True, eps)

@@ -216,6 +216,28 @@ def flat(ctrl: np.ndarray, rational: bool, eps: float) -> bool:
                 or np.linalg.norm(xyz - xyz[:1, :], axis=-1).max() <= eps)
 
 
+def needle(ctrl: np.ndarray, rational: bool, eps: float) -> bool:
+    """A tiny patch (within _NEEDLE x eps) that is a curve: every sampled point lies within ``eps``
+    of its longest side. Such a patch encloses nothing, and its neighbours pair across it
+    directly. Stage 2 makes them where a side along a degenerate edge collapses onto its vertex
+    beside a rung that is collapsed already (gmsh__U_Joint_2.stp: 8 patches whose other two sides
+    run 1.4e-11 apart, 3.6e-6 long; written, the STEP reader rebuilt their pcurves and read them
+    back trimmed)."""
+    xyz = ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl
+    if float(np.ptp(xyz.reshape(-1, 3), axis=0).max()) > _NEEDLE * eps:
+        return False
+    rows = [side_row(ctrl, rational, n) for n in SIDE_NAMES]
+    lengths = [float(np.linalg.norm(np.diff(_evaluate(r, np.linspace(0.0, 1.0, 9)), axis=0), axis=1).sum())
+               for r in rows]
+    g = np.linspace(0.0, 1.0, 9)
+    C = ctrl if rational else np.concatenate([ctrl, np.ones(ctrl.shape[:2] + (1,))], axis=-1)
+    m1, n1 = C.shape[:2]
+    h = _basis(n1 - 1, g)[None] @ (_basis(m1 - 1, g) @ C.reshape(m1, -1)).reshape(-1, n1, 4)
+    pts = (h[..., :3] / h[..., 3:4]).reshape(-1, 3)
+    _, d = project(rows[int(np.argmax(lengths))], pts)
+    return bool(d.max() <= eps)
+
+
 def stray_needles(topo: Topology, nets: list[tuple[np.ndarray, bool]], eps: float) -> set[int]:
     """Patches that make a closed part on their own and are tiny (within ``_NEEDLE`` x eps): two of
     their sides pair with each other, so they enclose nothing. Left in, each became a shell of its

@@ -76,7 +76,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None)
     (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
     connected part; a solid where the group was a solid's shell and no edge is left free. Returns
     the compound and counts (free edges left, shells, solids, T-vertices, largest edge deviation)."""
-    from ..topology import connect, flat, stray_needles
+    from ..topology import connect, flat, needle, stray_needles
     from .build import joined_faces
 
     builder = BRep_Builder()
@@ -88,7 +88,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None)
         if not nets:
             continue
         eps = JOIN_REL * diagonal
-        keep = [n for n in nets if not flat(n[0], n[1], eps)]
+        keep = [n for n in nets if not (flat(n[0], n[1], eps) or needle(n[0], n[1], eps))]
         info["flat_patches"] += len(nets) - len(keep)
         nets = keep
         topo = connect([(c, r) for c, r, _ in nets], eps)
