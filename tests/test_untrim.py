@@ -432,10 +432,10 @@ def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
     # pieces [0, 0.6] and [0.4, 1] overlap and neither holds the other, so both are cut
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0))]
     cells[0][8], cells[1][8] = [0.6], [0.4]
-    _near_end_cuts(cells, [], veps)
+    _near_end_cuts(cells, [(0, 0.6), (1, 0.6), (1, 0.4), (2, 0.4)], veps)  # the cuts' ends, as _cells
     assert [c[8] for c in cells] == [[0.4, 0.6], [0.4, 0.6]]
     # a long piece that holds the other side's pieces is left to stage 2 (a T-vertex)
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0))]
     cells[1][8] = [0.4]
-    _near_end_cuts(cells, [], veps)
+    _near_end_cuts(cells, [(1, 0.4), (2, 0.4)], veps)
     assert [c[8] for c in cells] == [[], [0.4]]

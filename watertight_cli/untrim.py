@@ -40,7 +40,6 @@ step can compare the patch with S(phi) evaluated independently.
 
 from __future__ import annotations
 
-import bisect
 import time
 from dataclasses import dataclass, field, replace
 
@@ -586,8 +585,10 @@ def _near_end_cuts(cells: list, ends: list[tuple[int, float]], veps: float) -> N
     """Cut cells along v-iso lines (where the line stays between the cell's bottom and top) so
     that stage 2 can make the patch sides along each slab line meet:
 
-    - at every point of ``ends`` (slab line index, v) strictly inside one of the cell's rung
-      pieces (its rung between its cuts) within _NEAR_END of that piece's end;
+    - at every point of ``ends`` (slab line index, v) strictly inside one of the cell's rungs
+      within _NEAR_END of its end (measured on the whole rung: measured on the pieces between
+      the cell's cuts, points beside knot lines spread thin strips across whole faces, and
+      occt__trj8_k1-db-214.stp went from 7413 to 11991 patches);
     - where a rung piece and a piece on the other side of the line overlap with neither holding
       the other (fusee faces 93 and 165: the cuts at a boundary edge's plan points met a thin
       slab's rungs out of step, and stage 2 shares a side only with a side that holds it), at the
@@ -598,17 +599,26 @@ def _near_end_cuts(cells: list, ends: list[tuple[int, float]], veps: float) -> N
     their slab line, not by their u: a slab narrower than the lines' clustering distance would
     otherwise lend its corners to the rungs of the line beside it. ``cells`` holds [ua, ub, bottom,
     top, left rung, right rung, highest bottom v, lowest top v, cuts, slab index]."""
+    on_line: dict[int, list[int]] = {}
+    for i, cell in enumerate(cells):
+        for line in (cell[9], cell[9] + 1):
+            on_line.setdefault(line, []).append(i)
     pending = ends
     for _ in range(4 * len(cells) + 1):
-        # each cell's rung pieces per (line, side of the line the cell lies on: 1 right, 0 left)
+        by_line: dict[int, list[float]] = {}
+        for line, v in pending:
+            by_line.setdefault(line, []).append(v)
+        # only the cells on a line that has new points can need a cut (the first round: all)
+        todo = sorted({i for line in by_line for i in on_line.get(line, ())})
+        # their rung pieces on those lines, per (line, side of the line the cell lies on: 1 right)
         subs = []
         pieces: dict[tuple[int, int], list[tuple[float, float]]] = {}
-        for cell in cells:
-            left, right, _, _, cuts, j = cell[4:]
+        for i in todo:
+            left, right, _, _, cuts, j = cells[i][4:]
             sub = []
             for line, side, (b, t) in ((j, 1, left), (j + 1, 0, right)):
                 lo, hi = min(b[1], t[1]), max(b[1], t[1])
-                if hi - lo <= veps:
+                if line not in by_line or hi - lo <= veps:
                     continue
                 pts = [lo] + [c for c in cuts if lo + veps < c < hi - veps] + [hi]
                 sub.append((line, side, pts))
@@ -618,19 +628,14 @@ def _near_end_cuts(cells: list, ends: list[tuple[int, float]], veps: float) -> N
         for key, ps in pieces.items():
             ps.sort()
             index[key] = (np.array([p for p, _ in ps]), np.array([q for _, q in ps]))
-        by_line: dict[int, list[float]] = {}
-        for line, v in pending:
-            by_line.setdefault(line, []).append(v)
         pending = []
-        for cell, sub in zip(cells, subs, strict=True):
+        for i, sub in zip(todo, subs, strict=True):
+            cell = cells[i]
             extra = []
             for line, side, pts in sub:
-                for v in by_line.get(line, ()):
-                    k = bisect.bisect_left(pts, v)
-                    if 0 < k < len(pts):
-                        p, q = pts[k - 1], pts[k]
-                        if p + veps < v < q - veps and min(v - p, q - v) < _NEAR_END * (q - p):
-                            extra.append(v)
+                lo, hi = pts[0], pts[-1]
+                extra.extend(v for v in by_line[line] if lo + veps < v < hi - veps
+                             and min(v - lo, hi - v) < _NEAR_END * (hi - lo))
                 if (line, 1 - side) not in index:
                     continue
                 starts, stops = index[(line, 1 - side)]
