@@ -401,7 +401,7 @@ def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
     stage 2's bend, a cut that would cross a cell's bottom or top is not made, and ends are
     matched to rungs by their slab line. Rung pieces that overlap out of step across a line are
     cut (fusee faces 93 and 165 had 6 free edges there)."""
-    from watertight_cli.untrim import _near_end_cuts
+    from watertight_cli.untrim import _align_rungs
 
     veps = 1e-9
 
@@ -414,28 +414,28 @@ def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
     # three slabs side by side, 0..1 in v; an end on line 1 (between slab 0 and slab 1) near v = 1
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0)),
              cell(2, 2.0, 3.0, (0.0, 0.0), (1.0, 1.0))]
-    _near_end_cuts(cells, [(1, 0.99994)], veps)
+    _align_rungs(cells, [(1, 0.99994)], veps)
     assert [c[8] for c in cells] == [[0.99994]] * 3  # spread across the face
     # in the middle of the rung: nothing
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0))]
-    _near_end_cuts(cells, [(1, 0.5)], veps)
+    _align_rungs(cells, [(1, 0.5)], veps)
     assert cells[0][8] == []
     # the top runs down to 0.9 across the second cell: the line stops before it
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 0.9))]
-    _near_end_cuts(cells, [(0, 0.99994)], veps)
+    _align_rungs(cells, [(0, 0.99994)], veps)
     assert [c[8] for c in cells] == [[0.99994], []]
     # an end on another line than the rung's (a slab narrower than the clustering distance)
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0))]
-    _near_end_cuts(cells, [(2, 0.99994)], veps)
+    _align_rungs(cells, [(2, 0.99994)], veps)
     assert cells[0][8] == []
     # rung pieces out of step across a line (cut at 0.6 on one side, 0.4 on the other): the
     # pieces [0, 0.6] and [0.4, 1] overlap and neither holds the other, so both are cut
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0))]
     cells[0][8], cells[1][8] = [0.6], [0.4]
-    _near_end_cuts(cells, [(0, 0.6), (1, 0.6), (1, 0.4), (2, 0.4)], veps)  # the cuts' ends, as _cells
+    _align_rungs(cells, [(0, 0.6), (1, 0.6), (1, 0.4), (2, 0.4)], veps)  # the cuts' ends, as _cells
     assert [c[8] for c in cells] == [[0.4, 0.6], [0.4, 0.6]]
     # a long piece that holds the other side's pieces is left to stage 2 (a T-vertex)
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0))]
     cells[1][8] = [0.4]
-    _near_end_cuts(cells, [(1, 0.4), (2, 0.4)], veps)
+    _align_rungs(cells, [(1, 0.4), (2, 0.4)], veps)
     assert [c[8] for c in cells] == [[], [0.4]]

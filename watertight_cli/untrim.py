@@ -63,8 +63,9 @@ _RUNG_CUTS = ("plan", "vertices", "none")
 #: share of the tolerance by which a rung may slide along its side when it takes an edge's curve whose
 #: parameter is not affine in v (stage 2, ``substitute._rung_ref``); the move enters the bound
 RUNG_SLIDE = 0.1
-#: a pcurve end inside a neighbouring cell's rung closer than this share of the rung's height to
-#: its end cuts that cell along the v-iso line through it, where the line stays between the cell's
+#: a pcurve end (or a cut's end) inside a neighbouring cell's rung closer than this share of the
+#: rung's height to its end cuts that cell along the v-iso line through it (``_align_rungs``), where
+#: the line stays between the cell's
 #: bottom and top. Stage 2 moves such an end onto the edge's curve (by the input's gap there) and
 #: would have to bend the long rung through it: a polynomial within degree 25 that moves one
 #: point a hair from an end bulges more than twice that move (``substitute._bump``, at 0.0095)
@@ -536,7 +537,8 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
                 vertex_ends.append((q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]))
     vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
     # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
-    # inside a neighbouring cell's rung a hair from its end: see _NEAR_END
+    # inside a neighbouring cell's rung a hair from its end: see _NEAR_END. A piece of slab j runs
+    # from line j (its first point, k = 0) to line j + 1 (its last, k = 1)
     near_ends = [] if rung_cuts == "none" else [
         (j + k, float(q.H[-k, 1] / q.H[-k, 2])) for j, sp in enumerate(slabs) for q in sp for k in (0, 1)]
     cells = []
@@ -574,14 +576,14 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
         # of a neighbour's rung too (fusee face 37: a vertex cut beside a rung 1.77 long, 0.0086
         # of it from its end, and the bend refused left a free edge)
         near_ends += [(c[9] + k, v) for c in cells for v in c[8] for k in (0, 1)]
-    _near_end_cuts(cells, near_ends, veps)
+    _align_rungs(cells, near_ends, veps)
     for ua, ubb, bside, tside, left, right, _, _, knots, _ in cells:
         sides = ([bside] + [_iso_side(_rung_u(*left, c), _rung_u(*right, c), c) for c in knots] + [tside])
         for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
             yield ua, ubb, s0, s1
 
 
-def _near_end_cuts(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
+def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
     """Cut cells along v-iso lines (where the line stays between the cell's bottom and top) so
     that stage 2 can make the patch sides along each slab line meet:
 
