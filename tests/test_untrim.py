@@ -439,3 +439,40 @@ def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
     cells[1][8] = [0.4]
     _align_rungs(cells, [(1, 0.4), (2, 0.4)], veps)
     assert [c[8] for c in cells] == [[], [0.4]]
+
+
+def test_sides_crossing_just_before_a_tip_are_cut_at_the_crossing():
+    """A cell's bottom and top that meet at one end of the slab (a tangential corner) but cross a
+    hair before it (fusee face 110: 2.1e-5 in u, an inverted strip 3.4e-9 thick) are both cut where
+    they cross, so the cell ends in a collapsed rung and is kept instead of dropped as thin. A
+    crossing whose inverted strip is thicker than a sliver, sides that do not cross, and sides that
+    meet at neither end are left alone."""
+    from types import SimpleNamespace
+
+    from watertight_cli.untrim import _eval, _Piece, _uncross
+
+    def piece(vs):  # v as a Bezier in t = u on [0, 1]
+        n = len(vs) - 1
+        return _Piece(np.array([[k / n, v, 1.0] for k, v in enumerate(vs)]), 0, 0.0, 1.0, False)
+
+    g = SimpleNamespace(sv=1.0, sliver=1e-6)
+    bot = piece([0.0, 0.0])
+    for c, ux in ((1e-4, 0.99), (1.0, 0.99999)):
+        # top: v = c (u - 1)(u - ux): above bot before ux, below it (by <= c (1 - ux)^2 / 4) after
+        top = piece([c * ux, c * (ux - (1 + ux) / 2), 0.0])
+        out = _uncross(bot, top, g)
+        assert out is not None
+        for p in out:
+            assert p.H[-1, 0] / p.H[-1, 2] == pytest.approx(ux, abs=1e-12)
+        assert abs(_eval(out[1].H, 1.0)[0, 1] - _eval(out[0].H, 1.0)[0, 1]) < 1e-13
+        # the same cell mirrored in u: the tip at the start
+        mirror = [_Piece(np.array([[1 - h[0], h[1], 1.0] for h in p.H[::-1]]), 0, 0.0, 1.0, False)
+                  for p in (bot, top)]
+        out = _uncross(*mirror, g)
+        assert out is not None
+        assert out[0].H[0, 0] == pytest.approx(1 - ux, abs=1e-12)
+    # the inverted strip 0.01^2 / 4 = 2.5e-5 thick: wider than a sliver
+    assert _uncross(bot, piece([0.99, 0.99 - 1.99 / 2, 0.0]), g) is None
+    # meeting at the tip without crossing, and not meeting at all
+    assert _uncross(bot, piece([1.0, 0.0]), g) is None
+    assert _uncross(bot, piece([1.0, 1.0]), g) is None

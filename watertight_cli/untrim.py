@@ -556,6 +556,12 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             )
         for k in range(0, len(sp), 2):
             bot, top = sp[order[k]], sp[order[k + 1]]
+            cua, cub = ua, ubb
+            uncrossed = _uncross(bot, top, g)
+            if uncrossed is not None:
+                bot, top = uncrossed
+                fr.slivers += 1  # the inverted strip beyond the crossing is left out
+                cua, cub = float(bot.H[0, 0] / bot.H[0, 2]), float(bot.H[-1, 0] / bot.H[-1, 2])
             bside, tside = _as_side(bot, veps), _as_side(top, veps)
             for sd in (bside, tside):
                 fr.snapped += sd.iso and float(np.ptp(sd.H[:, 1] / sd.H[:, 2])) > 0
@@ -570,7 +576,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
             t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
             knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
-            cells.append([ua, ubb, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j])
+            cells.append([cua, cub, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j])
     if rung_cuts != "none":
         # the cuts made so far end on both rungs of their cells: those ends may fall near the end
         # of a neighbour's rung too (fusee face 37: a vertex cut beside a rung 1.77 long, 0.0086
@@ -581,6 +587,79 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
         sides = ([bside] + [_iso_side(_rung_u(*left, c), _rung_u(*right, c), c) for c in knots] + [tside])
         for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
             yield ua, ubb, s0, s1
+
+
+# where _uncross looks for a crossing: evenly, and geometrically closer to either end (the
+# inverted strip of fusee face 110 is 1/170 of its cell)
+_TIP_GRID = np.unique(np.concatenate([np.linspace(0.0, 1.0, 33), 2.0 ** -np.arange(6, 41),
+                                      1.0 - 2.0 ** -np.arange(6, 41)]))
+
+
+def _t_at_us(H: np.ndarray, us: np.ndarray) -> np.ndarray:
+    """``_t_at_u`` at many u at once, by bisection on all of them together (the piece is monotone
+    in u and spans every u asked): 56 halvings leave t within 1.4e-17."""
+    k = H.shape[0] - 1
+    lo, hi = np.zeros(len(us)), np.ones(len(us))
+    rising = H[-1, 0] / H[-1, 2] >= H[0, 0] / H[0, 2]
+    for _ in range(56):
+        mid = 0.5 * (lo + hi)
+        h = basis(k, mid) @ H
+        below = (h[:, 0] - us * h[:, 2] < 0) == rising  # u(mid) < u (W > 0)
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _v_at_us(H: np.ndarray, us: np.ndarray) -> np.ndarray:
+    return _eval(H, _t_at_us(H, us))[:, 1]
+
+
+def _uncross(bot: _Piece, top: _Piece, g: _FaceGeometry) -> tuple[_Piece, _Piece] | None:
+    """A cell's bottom and top (both running with u increasing) that meet at one end of the slab
+    (a tangential corner) but cross just before it: the trimming loop turns inside out over a strip
+    thinner than a sliver. fusee face 110: two pcurves meet at a vertex, 2.1e-5 in u after crossing,
+    and top runs up to 3.4e-9 in v (2.4e-7 in 3D) below bottom in between; the cell, judged thin
+    as a whole, was dropped and left three free edges. The sides are cut where they cross, so the
+    cell ends in a collapsed rung there and the inverted strip is no part of the face. None when
+    the sides do not cross so (no tip, no crossing, or an inverted strip wider than a sliver)."""
+    bu = bot.H[[0, -1], 0] / bot.H[[0, -1], 2]
+    tu = top.H[[0, -1], 0] / top.H[[0, -1], 2]
+    lo, hi = max(bu[0], tu[0]), min(bu[1], tu[1])
+    if not hi > lo:
+        return None
+    # the sides' v at both ends of the common span: piece ends where they are there (nearly
+    # always: the pieces are cut at the slab lines), else found on the piece
+    ends = np.empty((2, 2))
+    for r, (p, pu) in enumerate(((bot, bu), (top, tu))):
+        for c, (u, i) in enumerate(((lo, 0), (hi, -1))):
+            ends[r, c] = (p.H[i, 1] / p.H[i, 2] if pu[i] == u
+                          else float(_eval(p.H, _t_at_u(p.H, float(u)))[0, 1]))
+    tips = np.abs(ends[1] - ends[0]) * g.sv <= g.sliver  # (at lo, at hi)
+    if not tips.any():
+        return None  # the sides meet at neither end: nothing to look for (almost every cell)
+    us = lo + (hi - lo) * _TIP_GRID
+    d = _v_at_us(top.H, us) - _v_at_us(bot.H, us)
+    # round-off of the two sides' v at one u (near the tip)
+    zero = 1e-13 * (1.0 + float(np.abs(bot.H[:, 1] / bot.H[:, 2]).max()))
+    for tip_at_hi in (True, False):
+        if not tips[1 if tip_at_hi else 0]:
+            continue
+        dd, uu = (d, us) if tip_at_hi else (d[::-1], us[::-1])  # from the open end to the tip
+        neg = dd < -zero
+        if not neg.any():
+            continue
+        k = int(np.argmax(neg))
+        if (k == 0 or not (dd[:k] >= -zero).all() or dd[k - 1] <= 0 or (dd[k:] > zero).any()
+                or -dd.min() * g.sv > g.sliver):
+            continue
+
+        def gap(u: float) -> float:
+            return float(_v_at_us(top.H, np.array([u]))[0] - _v_at_us(bot.H, np.array([u]))[0])
+
+        a, b = sorted((float(uu[k - 1]), float(uu[k])))
+        ux = float(brentq(gap, a, b, xtol=1e-15, rtol=1e-15))
+        cut = [_split(q, _t_at_u(q.H, ux)) for q in (bot, top)]
+        return (cut[0][0], cut[1][0]) if tip_at_hi else (cut[0][1], cut[1][1])
+    return None
 
 
 def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
