@@ -628,3 +628,36 @@ def test_side_deviations_agree_with_verify():
         np.testing.assert_array_equal(near, fc.side_per_patch)  # what stage 2 is handed
         for p, d in zip(fr.patches, near, strict=True):
             assert d <= p.bound + fr.closure + tol.exact_rel * ins.model.diagonal
+
+
+def test_tails_beyond_a_crossing_take_one_curve_and_one_corner():
+    """Beyond a face's crossing (fusee faces 60 and 110: two pcurves cross 1.7e-3 before their
+    vertex, in 3D 1e-6 apart there) the neighbours across the two edges meet each other: the sides
+    on the higher edge's tail take the lower edge's tail (parameters mapped affinely, direction
+    kept), so both get the same curve, and a corner at the crossing on the higher edge is the lower
+    edge's corner there. Sides off the tail keep their edge."""
+    from types import SimpleNamespace
+
+    from watertight_cli.substitute import _Ref, _Tails
+    from watertight_cli.untrim import FaceResult
+
+    from .test_untrim import _two_edge_model
+
+    model = _two_edge_model()
+    fr = FaceResult(0)
+    fr.crossings = [((1, 0.9, 1.0), (0, 0.2, 0.0))]
+    tails = _Tails(model, SimpleNamespace(faces=[fr]))
+    whole = _Ref(1, 0.9, 1.0)
+    tails.rewrite(whole)
+    assert (whole.edge, whole.wa, whole.wb) == (0, 0.2, 0.0)
+    part = _Ref(1, 1.0, 0.95)
+    tails.rewrite(part)
+    assert part.edge == 0 and part.wa == 0.0 and part.wb == pytest.approx(0.1)
+    off = _Ref(1, 0.5, 0.9)
+    tails.rewrite(off)
+    assert (off.edge, off.wa, off.wb) == (1, 0.5, 0.9)
+    curves = S._Curves(model, 1e-8, 25, np.zeros((8, 3)))
+    curves.corner_alias = tails.corners()
+    assert curves.corner_key(1, 0.9) == curves.corner_key(0, 0.2) == ("e", 0, 0.2)
+    assert curves.corner_key(1, 1.0) == ("v", 5)
+    assert curves.corner_key(1, 0.5) == ("e", 1, 0.5)

@@ -476,3 +476,58 @@ def test_sides_crossing_just_before_a_tip_are_cut_at_the_crossing():
     # meeting at the tip without crossing, and not meeting at all
     assert _uncross(bot, piece([1.0, 0.0]), g) is None
     assert _uncross(bot, piece([1.0, 1.0]), g) is None
+
+
+def _two_edge_model():
+    """Stubs: edges 0 and 1 on [0, 1] meet at vertex 5 (edge 0 starts there, edge 1 ends there);
+    face 0 has both, face 1 only edge 0, face 2 only edge 1, face 3 neither."""
+    from types import SimpleNamespace
+
+    def line(d):
+        return SimpleNamespace(evaluate=lambda w: np.outer(np.asarray(w, dtype=float), d))
+
+    edges = [SimpleNamespace(first=0.0, last=1.0, vertices=(5, 6), degenerate=False,
+                             curve=line(np.array([1.0, 0.0, 0.0]))),
+             SimpleNamespace(first=0.0, last=1.0, vertices=(7, 5), degenerate=False,
+                             curve=line(np.array([0.0, 1.0, 0.0])))]
+
+    def face(i, used):
+        coedges = tuple(SimpleNamespace(edge=e) for e in used)
+        return SimpleNamespace(index=i, loops=(SimpleNamespace(coedges=coedges),))
+
+    faces = [face(0, (0, 1)), face(1, (0,)), face(2, (1,)), face(3, (9,))]
+    return SimpleNamespace(edges=edges, faces=faces)
+
+
+def test_a_crossing_cuts_the_neighbours_but_not_the_face_that_crossed():
+    """Two pcurves of a face that cross a hair before their common vertex (fusee faces 60 and 110)
+    leave the strip beyond the crossing to the face's neighbours, which meet each other there: the
+    edge plan gets a cut at the crossing on both edges, and the neighbours are decomposed again
+    with it. The face itself ends its cell at the crossing and is decomposed without its own cuts
+    (with them, the inverted strip beyond became a cell of its own, with a free side). A crossing
+    whose tails do not end at one vertex makes no cut."""
+    from watertight_cli.untrim import FaceResult, UntrimResult, _crossing_cuts, crossing_tails
+
+    model = _two_edge_model()
+    fr = FaceResult(0)
+    fr.crossings = [((1, 0.9, 1.0), (0, 0.2, 0.0))]  # bottom on edge 1, top on edge 0
+    assert crossing_tails(model, fr) == [((0, 0.2, 0.0), (1, 0.9, 1.0))]
+    plan = {0: np.array([0.5]), 1: np.zeros(0)}
+    own = {}
+    redo = _crossing_cuts(model, plan, [fr, FaceResult(1), FaceResult(2), FaceResult(3)], 1e-6, own)
+    np.testing.assert_array_equal(plan[0], [0.2, 0.5])
+    np.testing.assert_array_equal(plan[1], [0.9])
+    assert own == {0: {0: {0.2}, 1: {0.9}}}
+    assert redo == [1, 2]
+    result = UntrimResult([fr], plan, 1e-6, 25, own_cuts=own)
+    mine = result.plan_for(0)
+    np.testing.assert_array_equal(mine[0], [0.5])
+    assert len(mine[1]) == 0
+    assert result.plan_for(1) is plan
+    # tails that end short of the vertex, or at two different ones: no cut
+    for crossing in (((1, 0.9, 0.95), (0, 0.2, 0.0)), ((1, 0.9, 0.0), (0, 0.2, 0.0))):
+        fr.crossings = [crossing]
+        assert crossing_tails(model, fr) == []
+        plan = {0: np.array([0.5]), 1: np.zeros(0)}
+        assert _crossing_cuts(model, plan, [fr], 1e-6, {}) == []
+        np.testing.assert_array_equal(plan[0], [0.5])

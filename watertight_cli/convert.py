@@ -145,7 +145,7 @@ def _stage1(model, tol: Tolerances, progress):
     for i, fr in enumerate(result.faces):
         if fr.problems:
             try:
-                retry = untrim_face(model.faces[fr.face], model, result.plan, tol)
+                retry = untrim_face(model.faces[fr.face], model, result.plan_for(fr.face), tol)
             except UntrimError:
                 continue
             if not retry.problems:

@@ -50,7 +50,7 @@ from .gaps import vertex_corners
 from .model import Model
 from .tolerances import Tolerances
 from .topology import JOIN_REL, MERGE_REL
-from .untrim import RUNG_SLIDE, Patch, UntrimResult, _deriv_h, _eval, _t_at_u, cell_map
+from .untrim import RUNG_SLIDE, Patch, UntrimResult, _deriv_h, _eval, _t_at_u, cell_map, crossing_tails
 from .verify import side_deviations
 
 __all__ = ["substitute", "Substitution", "FaceSubstitution", "SIDES"]
@@ -154,6 +154,9 @@ class _Curves:
         # edge -> (breaks, per-piece polynomial nets), and the largest fit error per edge
         self._mid: dict[int, tuple[np.ndarray, list[np.ndarray]]] = {}
         self.mid_error: dict[int, float] = {}
+        # a crossing's point on the second edge is the first edge's point there (``_Tails``):
+        # edge -> [(w on it, other edge, w on that)]
+        self.corner_alias: dict[int, list[tuple[float, int, float]]] = {}
 
     def spans(self, e: int):
         if e not in self._spans:
@@ -172,6 +175,9 @@ class _Curves:
     def corner_key(self, e: int, w: float):
         edge = self.model.edges[e]
         eps = 1e-11 * max(edge.last - edge.first, 1e-300)
+        for x, e1, x1 in self.corner_alias.get(e, ()):
+            if abs(w - x) <= eps:
+                return self.corner_key(e1, x1)
         if abs(w - edge.first) <= eps:
             return ("v", edge.vertices[0])
         if abs(w - edge.last) <= eps:
@@ -370,6 +376,44 @@ class _Curves:
         else:
             K = self.exact(e, lo, hi)
         return K
+
+
+class _Tails:
+    """The tails beyond the faces' crossings (``untrim.crossing_tails``), taken as one boundary.
+
+    Where a face's two pcurves (edges a and b) cross a hair before the vertex V they meet at, the
+    face ends at the crossing and its neighbours across a and across b meet each other from there
+    to V: a's tail [xa, V] and b's tail [xb, V] are one boundary, and the crossing is one corner.
+    The edge plan cut both edges at the crossing (``untrim._crossing_cuts``); here the sides on
+    b's tail take a's tail (b's parameter mapped affinely onto a's), so the two neighbours get the
+    same curve, and a corner at b's crossing parameter is a's corner there. The edge with the lower
+    index keeps its own curve."""
+
+    def __init__(self, model: Model, result: UntrimResult):
+        self.maps: dict[int, list[tuple[float, float, int, float, float]]] = {}
+        seen = set()
+        for fr in result.faces:
+            for (ea, xa, fa), (eb, xb, fb) in crossing_tails(model, fr):
+                if (eb, xb) not in seen:
+                    seen.add((eb, xb))
+                    self.maps.setdefault(eb, []).append((xb, fb, ea, xa, fa))
+
+    def rewrite(self, ref: _Ref | None) -> None:
+        """Put a side on b's tail onto a's tail, in place."""
+        if ref is None or ref.pole or ref.along is not None:
+            return
+        for xb, fb, ea, xa, fa in self.maps.get(ref.edge, ()):
+            lo, hi = min(xb, fb), max(xb, fb)
+            eps = 1e-9 * (hi - lo)
+            if all(lo - eps <= w <= hi + eps for w in (ref.wa, ref.wb)):
+                f = (fa - xa) / (fb - xb)
+                ref.edge = ea
+                ref.wa, ref.wb = (fa if w == fb else xa + (w - xb) * f for w in (ref.wa, ref.wb))
+                return
+
+    def corners(self) -> dict[int, list[tuple[float, int, float]]]:
+        """b -> [(xb, a, xa)]: the crossing's corner on b is a's (``_Curves.corner_alias``)."""
+        return {eb: [(xb, ea, xa) for xb, _, ea, xa, _ in maps] for eb, maps in self.maps.items()}
 
 
 def _weight_factor(kappa: np.ndarray, budget: int) -> np.ndarray:
@@ -737,6 +781,8 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
     None)."""
     curves = _Curves(model, _POLY_REL * tol.approx_rel * model.diagonal, tol.max_degree,
                      vertex_corners(model, tol.approx_rel * model.diagonal)[0])
+    tails = _Tails(model, result)
+    curves.corner_alias = tails.corners()
     infos = []
     users: dict[tuple, list[np.ndarray]] = {}
     corner_uses: dict[tuple, int] = {}
@@ -747,6 +793,8 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
         info = []
         for p in fr.patches:
             refs, cm = _refs(p, fr.iso_pieces, eps, RUNG_SLIDE * tol.approx_rel * model.diagonal)
+            for ref in refs.values():
+                tails.rewrite(ref)
             info.append((refs, cm))
             for name, ref in refs.items():
                 if ref is None or ref.pole:

@@ -145,6 +145,11 @@ class FaceResult:
     # pieces that lie on a slab line (u-iso): the rungs of the cells beside them are on their edges
     iso_pieces: list = field(default_factory=list)
     eps: tuple[float, float] | None = None  # (u, v) distances below which uv values are one line
+    # where two of the face's pcurves cross a hair before the vertex they meet at (``_uncross``): per
+    # crossing, for the cell's bottom and top, (edge, w at the crossing, w at the tip); the strip
+    # between the crossing and the tip is no part of the face, so there the face's two neighbours
+    # meet each other (the edge plan cuts them at the crossing, stage 2 gives them one curve)
+    crossings: list = field(default_factory=list)
     # seconds spent on the face: "cells" (pieces and cell decomposition), "reparam" (composition,
     # approximation and compaction of the cells' patches)
     times: dict[str, float] = field(default_factory=lambda: {"cells": 0.0, "reparam": 0.0})
@@ -157,6 +162,14 @@ class UntrimResult:
     tolerance: float
     max_degree: int
     plan_time: float = 0.0  # seconds spent on the face geometries and the edge plan
+    # per face, the plan cuts that only its own crossings put there (edge -> parameters): the face
+    # ends its cell at the crossing by itself, and a cut there would give it the inverted strip
+    # beyond as a cell of its own (``plan_for``)
+    own_cuts: dict[int, dict[int, set[float]]] = field(default_factory=dict)
+
+    def plan_for(self, face: int) -> dict[int, np.ndarray]:
+        """The edge plan a face is decomposed with: ``plan`` less the face's own crossing cuts."""
+        return _plan_without(self.plan, self.own_cuts.get(face, {}))
 
     @property
     def patches(self) -> list[Patch]:
@@ -559,6 +572,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             cua, cub = ua, ubb
             uncrossed = _uncross(bot, top, g)
             if uncrossed is not None:
+                fr.crossings.append(tuple(_tail(p, q) for p, q in zip((bot, top), uncrossed, strict=True)))
                 bot, top = uncrossed
                 fr.slivers += 1  # the inverted strip beyond the crossing is left out
                 cua, cub = float(bot.H[0, 0] / bot.H[0, 2]), float(bot.H[-1, 0] / bot.H[-1, 2])
@@ -660,6 +674,12 @@ def _uncross(bot: _Piece, top: _Piece, g: _FaceGeometry) -> tuple[_Piece, _Piece
         cut = [_split(q, _t_at_u(q.H, ux)) for q in (bot, top)]
         return (cut[0][0], cut[1][0]) if tip_at_hi else (cut[0][1], cut[1][1])
     return None
+
+
+def _tail(whole: _Piece, kept: _Piece) -> tuple[int, float, float]:
+    """(edge, w at the crossing, w at the tip) of a piece that ``_uncross`` cut to ``kept``."""
+    tip_at_hi = kept.H[-1, 0] / kept.H[-1, 2] < whole.H[-1, 0] / whole.H[-1, 2]
+    return (whole.edge, kept.w1, whole.w1) if tip_at_hi else (whole.edge, kept.w0, whole.w0)
 
 
 def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
@@ -1371,7 +1391,8 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
         left = 0 if fixed or fr.problems else _unshared_rungs(fr, slide)
         if not fixed and (fr.problems or left):
             turned = transpose_face(face)
-            frt = _face_or_problem(turned, model, plan, tol, _FaceGeometry(turned, model.diagonal, tol))
+            gt = _FaceGeometry(turned, model.diagonal, tol)
+            frt = _face_or_problem(turned, model, plan, tol, gt)
             if not frt.problems:
                 left_t = _unshared_rungs(frt, slide)
                 room = _TURN_GROWTH * (len(fr.patches) + left - left_t)
@@ -1381,10 +1402,78 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
                 repairs = frt.closure <= fr.closure + 0.1 * slide
                 if fr.problems or (left_t < left and repairs and len(frt.patches) <= room):
                     model.faces[i], fr = turned, frt
+                    geoms[i] = gt
         faces.append(fr)
         if progress is not None:
             progress(1)
-    return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time)
+    own: dict[int, dict[int, set[float]]] = {}
+    for i in _crossing_cuts(model, plan, faces, tol.sliver_rel * model.diagonal, own):
+        fr = _face_or_problem(model.faces[i], model, _plan_without(plan, own.get(i, {})), tol, geoms[i])
+        if len(fr.problems) <= len(faces[i].problems):
+            faces[i] = fr
+    return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time, own)
+
+
+def _plan_without(plan: dict[int, np.ndarray], cuts: dict[int, set[float]]) -> dict[int, np.ndarray]:
+    if not cuts:
+        return plan
+    out = dict(plan)
+    for e, ws in cuts.items():
+        out[e] = np.array([w for w in plan[e] if float(w) not in ws])
+    return out
+
+
+def tail_vertex(model: Model, e: int, w: float) -> int | None:
+    """The vertex at edge ``e``'s end when ``w`` is that end's parameter, else None."""
+    edge = model.edges[e]
+    if edge.degenerate or edge.curve is None:
+        return None
+    eps = 1e-9 * max(edge.last - edge.first, 1e-300)
+    if abs(w - edge.first) <= eps:
+        return edge.vertices[0]
+    if abs(w - edge.last) <= eps:
+        return edge.vertices[1]
+    return None
+
+
+def crossing_tails(model: Model, fr: FaceResult) -> list[tuple[tuple[int, float, float], ...]]:
+    """The face's crossings whose two tails run on two edges to one vertex, each as
+    ((edge a, w at the crossing, w at the vertex), (edge b, ...)) with a < b: those stage 2 joins
+    (``substitute._Tails``). A crossing whose tails end elsewhere (on a slab line) is left alone."""
+    out = []
+    for tail in fr.crossings:
+        (ea, xa, fa), (eb, xb, fb) = sorted(tail)
+        va, vb = tail_vertex(model, ea, fa), tail_vertex(model, eb, fb)
+        if ea != eb and va is not None and va == vb and xa != fa and xb != fb:
+            out.append(((ea, xa, fa), (eb, xb, fb)))
+    return out
+
+
+def _crossing_cuts(model: Model, plan: dict[int, np.ndarray], faces: list[FaceResult],
+                   sliver: float, own: dict[int, dict[int, set[float]]]) -> list[int]:
+    """Put the faces' crossings (``crossing_tails``) into the edge plan: the edge parameter at each
+    crossing becomes a cut of its edge, so the neighbour on that edge ends a side there too.
+    Beyond the crossing the face has no area, and its two neighbours meet each other along the two
+    tails (stage 2 gives the tails one curve). A cut within a sliver of a cut the edge has (or of
+    its ends) is not added. ``own`` receives, per face, the cuts its own crossings made. Returns
+    the faces to decompose again: those with an edge that got a cut from another face's crossing
+    (a face ends its cell at its own crossing already)."""
+    for fr in faces:
+        for tail in crossing_tails(model, fr):
+            for e, w, _ in tail:
+                edge = model.edges[e]
+                have = np.concatenate([[edge.first, edge.last], plan.get(e, np.zeros(0))])
+                pts = edge.curve.evaluate(np.append(have, w))
+                if np.linalg.norm(pts[:-1] - pts[-1], axis=1).min() <= sliver:
+                    continue
+                plan[e] = np.sort(np.append(plan.get(e, np.zeros(0)), w))
+                own.setdefault(fr.face, {}).setdefault(e, set()).add(float(w))
+    redo = []
+    for i, face in enumerate(model.faces):
+        others = {e for f, cuts in own.items() if f != face.index for e in cuts}
+        if others & {ce.edge for lp in face.loops for ce in lp.coedges}:
+            redo.append(i)
+    return redo
 
 
 def _unshared_rungs(fr: FaceResult, slide: float) -> int:
