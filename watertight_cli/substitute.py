@@ -712,11 +712,18 @@ def _put(H: np.ndarray, name: str, K: np.ndarray) -> None:
     if K.shape[0] - 1 < d:
         K = elevate_curve(K, d - (K.shape[0] - 1))
     if H.shape[-1] == 4 and d > 0:
-        row = H[idx]
-        rho = ((row[-1, 3] / row[0, 3]) * (K[0, 3] / K[-1, 3])) ** (1.0 / d)
-        K = K * (rho ** np.arange(d + 1))[:, None]
-        K = K * (row[0, 3] / K[0, 3])
+        K = _match_ends(K, H[idx])
     H[idx] = K
+
+
+def _match_ends(K: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """Homogeneous K (same degree as ``row``) with the end weights of ``row``, by a scale and a
+    Moebius change of parameter (neither changes K's shape): the corners, which the rows through
+    them share, keep their weights, so those rows keep their shapes."""
+    d = K.shape[0] - 1
+    rho = ((row[-1, 3] / row[0, 3]) * (K[0, 3] / K[-1, 3])) ** (1.0 / d)
+    K = K * (rho ** np.arange(d + 1))[:, None]
+    return K * (row[0, 3] / K[0, 3])
 
 
 def _divisible(omega: np.ndarray, kappa: np.ndarray) -> bool:
@@ -998,14 +1005,9 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
                 H[idx + (slice(0, 3),)] = x * H[idx + (slice(3, 4),)]
             else:
                 H[idx] = H[ii[c0[0]], ii[c0[1]]]
-    if rational and not np.allclose(old[..., 3], H[..., 3], rtol=1e-12, atol=0.0):
-        H = _refit(old, H)
-        size = float(np.ptp(_cartesian(old, True).reshape(-1, 3), axis=0).max())
-        if float(np.ptp(_cartesian(H, True).reshape(-1, 3), axis=0).max()) > _REFIT_GROWTH * size:
-            # an ill-conditioned refit (marsCapsule: nets of a 13 mm part out to 36000): the patch
-            # keeps its stage-1 net and the gap there, which the read-back measures
-            fs.problems.append(f"face {p.face}: a patch could not take its shared curves (the refit of "
-                               "its weights was ill-conditioned); left as in stage 1")
+    if rational:
+        H = _refit_checked(old, H, p, fs, "its shared curves")
+        if H is None:
             return
     moved, est = _change(old, H, rational)
     fs.moved = max(fs.moved, moved)
@@ -1013,6 +1015,22 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     p.ctrl, p.rational = H, rational
     p.factors = p.factors + added
     p.bound += moved
+
+
+def _refit_checked(old: np.ndarray, H: np.ndarray, p: Patch, fs: FaceSubstitution, what: str
+                   ) -> np.ndarray | None:
+    """A rational net whose weights changed, with its inner control points refitted (``_refit``);
+    None (a problem recorded) where the refit is ill-conditioned (marsCapsule: nets of a 13 mm part
+    out to 36000): the patch then keeps its net and the gap there, which the read-back measures."""
+    if np.allclose(old[..., 3], H[..., 3], rtol=1e-12, atol=0.0):
+        return H
+    H = _refit(old, H)
+    size = float(np.ptp(_cartesian(old, True).reshape(-1, 3), axis=0).max())
+    if float(np.ptp(_cartesian(H, True).reshape(-1, 3), axis=0).max()) > _REFIT_GROWTH * size:
+        fs.problems.append(f"face {p.face}: a patch could not take {what} (the refit of its weights "
+                           "was ill-conditioned); left as it was")
+        return None
+    return H
 
 
 def _corner_clusters(fr, info, eps3: float = 0.0, fixed: dict | None = None
@@ -1483,12 +1501,19 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
     old = H.copy()
     own = _row(H, name)
     d = own.shape[0] - 1
+    g = None
     if rational:
         g = _divide(own[:, 3], row[:, 3])
         if g is not None:  # the same curve in the same parameter, written with (nearly) this net's weights
             row = product(row, g) if len(g) > 1 else row * g[0]
     if row.shape[0] - 1 < d:
         row = elevate_curve(row, d - (row.shape[0] - 1))
+    if rational and g is None and d > 0:
+        # other weights than this net's (the partner carries a weight function this one lacks):
+        # the row keeps this net's corner weights, as a K does (``_put``); with the partner's end
+        # weights the rows through the corners changed shape (ec_turbine face 11: an edge's side
+        # moved 1.1e-5 off the edge, and the patch 2.4e-4)
+        row = _match_ends(row, own)
     if np.array_equal(own, row):
         p.ctrl, p.rational = H, rational
         p.factors = p.factors + added
@@ -1512,6 +1537,10 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
     _displace(H, {c: x - _corner_xyz(H, c, rational) for c, x in zip(corner_ids, ends, strict=True)},
               rational)
     H[idx] = row
+    if rational:
+        H = _refit_checked(old, H, p, fs, "a neighbour's side")
+        if H is None:
+            return
     moved, est = _change(old, H, rational)
     fs.moved = max(fs.moved, moved)
     fs.estimated = fs.estimated or est
