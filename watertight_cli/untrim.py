@@ -1423,7 +1423,7 @@ def _plan_without(plan: dict[int, np.ndarray], cuts: dict[int, set[float]]) -> d
     return out
 
 
-def tail_vertex(model: Model, e: int, w: float) -> int | None:
+def _tail_vertex(model: Model, e: int, w: float) -> int | None:
     """The vertex at edge ``e``'s end when ``w`` is that end's parameter, else None."""
     edge = model.edges[e]
     if edge.degenerate or edge.curve is None:
@@ -1443,7 +1443,7 @@ def crossing_tails(model: Model, fr: FaceResult) -> list[tuple[tuple[int, float,
     out = []
     for tail in fr.crossings:
         (ea, xa, fa), (eb, xb, fb) = sorted(tail)
-        va, vb = tail_vertex(model, ea, fa), tail_vertex(model, eb, fb)
+        va, vb = _tail_vertex(model, ea, fa), _tail_vertex(model, eb, fb)
         if ea != eb and va is not None and va == vb and xa != fa and xb != fb:
             out.append(((ea, xa, fa), (eb, xb, fb)))
     return out
