@@ -1006,9 +1006,14 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
             else:
                 H[idx] = H[ii[c0[0]], ii[c0[1]]]
     if rational:
-        H = _refit_checked(old, H, p, fs, "its shared curves")
-        if H is None:
+        refit = _refit_checked(old, H)
+        if refit is None:
+            # an ill-conditioned refit (marsCapsule: nets of a 13 mm part out to 36000): the patch
+            # keeps its stage-1 net and the gap there, which the read-back measures
+            fs.problems.append(f"face {p.face}: a patch could not take its shared curves (the refit of "
+                               "its weights was ill-conditioned); left as in stage 1")
             return
+        H = refit
     moved, est = _change(old, H, rational)
     fs.moved = max(fs.moved, moved)
     fs.estimated = fs.estimated or est
@@ -1017,18 +1022,14 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     p.bound += moved
 
 
-def _refit_checked(old: np.ndarray, H: np.ndarray, p: Patch, fs: FaceSubstitution, what: str
-                   ) -> np.ndarray | None:
+def _refit_checked(old: np.ndarray, H: np.ndarray) -> np.ndarray | None:
     """A rational net whose weights changed, with its inner control points refitted (``_refit``);
-    None (a problem recorded) where the refit is ill-conditioned (marsCapsule: nets of a 13 mm part
-    out to 36000): the patch then keeps its net and the gap there, which the read-back measures."""
+    None where the refit is ill-conditioned (its net spans more than ``_REFIT_GROWTH`` x the old)."""
     if np.allclose(old[..., 3], H[..., 3], rtol=1e-12, atol=0.0):
         return H
     H = _refit(old, H)
     size = float(np.ptp(_cartesian(old, True).reshape(-1, 3), axis=0).max())
     if float(np.ptp(_cartesian(H, True).reshape(-1, 3), axis=0).max()) > _REFIT_GROWTH * size:
-        fs.problems.append(f"face {p.face}: a patch could not take {what} (the refit of its weights "
-                           "was ill-conditioned); left as it was")
         return None
     return H
 
@@ -1538,9 +1539,10 @@ def _copy_row(p: Patch, name: str, row: np.ndarray, row_rational: bool, fs: Face
               rational)
     H[idx] = row
     if rational:
-        H = _refit_checked(old, H, p, fs, "a neighbour's side")
-        if H is None:
-            return
+        # the inside follows the new row (its weights changed); where that refit is ill-conditioned
+        # (bug33398 face 267) the net keeps its inner points, and the move is measured as it is
+        refit = _refit_checked(old, H)
+        H = H if refit is None else refit
     moved, est = _change(old, H, rational)
     fs.moved = max(fs.moved, moved)
     fs.estimated = fs.estimated or est
