@@ -22,7 +22,7 @@ from watertight_cli.untrim import (
     patch_points,
 )
 
-from .conftest import fixture_models, fixture_path
+from .conftest import corpus_path, fixture_models, fixture_path
 
 TOL = Tolerances()
 
@@ -531,3 +531,32 @@ def test_a_crossing_cuts_the_neighbours_but_not_the_face_that_crossed():
         plan = {0: np.array([0.5]), 1: np.zeros(0)}
         assert _crossing_cuts(model, plan, [fr], 1e-6, {}) == []
         np.testing.assert_array_equal(plan[0], [0.5])
+
+
+@pytest.mark.slow
+def test_a_face_with_a_pole_turns_when_its_rungs_cannot_take_their_edges():
+    """A face with a pole (a degenerate edge) may be decomposed turned like any face without a
+    seam: the pole is then a degenerate piece on a slab line, which its cell takes as a collapsed
+    rung. gmsh__wing_fuselage.step face 13 has a pole and an edge (29) that wiggles around u = 0
+    by 1e-4 over 180 spans: as is it made 11359 thin cells with 119 rungs along its edges that
+    could not take their edge's curve (most of the wing's 717 free edges after stage 2), turned
+    986 cells and none. Slow: the whole model is read and re-timed (about a minute)."""
+    from dataclasses import replace
+
+    from watertight_cli.inspect import inspect
+    from watertight_cli.sameparam import retime
+    from watertight_cli.untrim import RUNG_SLIDE, _unshared_rungs, untrim
+
+    tol = Tolerances()
+    model = inspect(str(corpus_path("gmsh__wing_fuselage.step")), tol, array_gaps=False).model
+    retime(model, tol)
+    face = model.faces[13]
+    assert any(model.edges[ce.edge].degenerate for lp in face.loops for ce in lp.coedges)
+    assert not any(model.edges[ce.edge].seam for lp in face.loops for ce in lp.coedges)
+    one = replace(model, faces=[face])
+    half = tol.with_(approx_rel=0.5 * tol.approx_rel)
+    fr = untrim(one, half).faces[0]
+    assert one.faces[0] is not face and one.faces[0].reversed != face.reversed  # turned
+    assert not fr.problems
+    assert _unshared_rungs(fr, RUNG_SLIDE * half.approx_rel * model.diagonal) == 0
+    assert len(fr.patches) < 2000
