@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -227,3 +228,99 @@ def test_a_tiny_patch_that_is_a_curve_is_a_needle():
     assert not needle(big, False, eps)
     # rational: weights do not change the verdict
     assert needle(np.concatenate([net * 2.0, np.full((2, 2, 1), 2.0)], axis=-1), True, eps)
+
+
+def test_a_patch_folded_along_one_curve_is_dropped_and_its_neighbours_pair():
+    """A patch whose two rungs took one shared curve, its other sides collapsed, bulges 1e-5
+    between them (gmsh__wing_fuselage.step face 9: 0.35 long): its boundary runs along the curve
+    and back, so left in, both neighbours paired with it in the same direction and BRepCheck found
+    the solid badly oriented. ``folded`` finds it within the allowed width, and without it the
+    neighbours pair with each other. A full turn between two poles (a sphere) has the same
+    boundary but is far from it and is kept."""
+    from watertight_cli.topology import folded
+
+    eps = 1e-9
+    A, B = np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.35, 0.0])
+    mid = 0.5 * (A + B) + np.array([0.0, 0.0, 1e-5])
+    fold = np.array([[A, 0.5 * (A + B), B], [A, mid, B], [A, 0.5 * (A + B), B]])  # left = right
+    assert folded(fold, False, eps, 1e-4) == pytest.approx(2.5e-6, rel=1e-3)  # the middle pole x 1/4
+    assert folded(fold, False, eps, 1e-6) is None  # wider than allowed: kept
+    assert folded(fold.transpose(1, 0, 2), False, eps, 1e-4) is not None  # bottom = top
+    # a sphere as one patch: the seam on both sides, a pole at each end
+    pole_s, pole_n = np.array([0.0, 0, -1]), np.array([0.0, 0, 1])
+    ring = [np.array([1.0, 0, 0]), np.array([0.0, 1, 0]), np.array([-1.0, 0, 0]), np.array([0.0, -1, 0]),
+            np.array([1.0, 0, 0])]
+    sphere = np.array([[pole_s, r, pole_n] for r in ring])
+    assert folded(sphere, False, eps, 1e-4) is None
+    # two sides that do not run together: not a fold
+    bent = fold.copy()
+    bent[-1, 1] += np.array([1e-3, 0.0, 0.0])
+    assert folded(bent, False, eps, 1e-4) is None
+    # the neighbours of the dropped fold pair directly: no free edge is left
+    left = np.array([[[-1.0, 0, 0], [-1.0, 0.35, 0]], [A, B]])
+    right = np.array([[A, B], [[1.0, 0, 0], [1.0, 0.35, 0]]])
+    topo = connect([(left, False), (right, False)], eps)
+    inner = [e for e in topo.edges if len(e.members) == 2]
+    assert len(inner) == 1
+
+
+def test_a_patch_whose_two_live_sides_meet_at_both_ends_as_one_curve_is_a_fold():
+    """Two adjacent collapsed sides, and the other two one curve run there and back
+    (gmsh__wing_fuselage.step: a 0.036 long one beside a crossing, read back trimmed with 0.009
+    edge tolerances when it was kept) is a fold too; a triangle with area is not."""
+    from watertight_cli.topology import folded
+
+    eps = 1e-9
+    A, C = np.array([0.0, 0.0, 0.0]), np.array([0.036, 0.0, 0.0])
+    M = 0.5 * (A + C)
+    # bottom A -> C, right C -> A (the same segment back), top and left collapsed at A
+    net = np.array([[A, A, A], [M, M + np.array([0, 0, 1e-6]), A], [C, M, A]])
+    assert folded(net, False, eps, 1e-4) is not None
+    tri = net.copy()
+    tri[2, 1] = M + np.array([0.0, 0.01, 0.0])  # the right side bows out: a triangle with area
+    assert folded(tri, False, eps, 1e-4) is None
+
+
+def _loop_area_xy(ctrl: np.ndarray) -> float:
+    """Signed area in the xy plane enclosed by a polynomial patch's boundary, run as its wire
+    runs (bottom, right, top backwards, left backwards)."""
+    from watertight_cli.topology import SIDE_NAMES, _evaluate, side_row
+
+    g = np.linspace(0.0, 1.0, 201)
+    pts = []
+    for name in SIDE_NAMES:
+        p = _evaluate(side_row(ctrl, False, name), g)
+        pts.append(p if name in ("bottom", "right") else p[::-1])
+    xy = np.concatenate(pts)[:, :2]
+    return 0.5 * float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
+
+
+def test_a_thin_lens_with_three_corners_at_one_point_is_made_again_with_poles_at_both_ends():
+    """Two adjacent collapsed sides at A, a live side A -> C and one C -> A beside it 1e-6 away
+    (gmsh__wing_fuselage.step: a cusp of face 9 where edges 28 and 29 run together; the STEP
+    reader rebuilt the pcurves of such a patch and read it back trimmed): made again as the
+    ruled patch between the two live sides, with A and C at the ends of two opposite sides. The
+    live sides and the way the wire runs are kept; a wide one is left alone."""
+    from watertight_cli.topology import _evaluate, lens, side_row
+
+    eps = 1e-9
+    A, C = np.array([0.0, 0.0, 0.0]), np.array([0.036, 0.0, 0.0])
+    bow = np.array([0.018, 2e-6, 0.0])  # the second side's middle point: it bows 1e-6 out
+    # bottom A -> C (a line, degree 2), right C -> A through bow (degree 2), top and left at A
+    net = np.array([[A, A, A], [0.5 * (A + C), 0.5 * (A + bow), A], [C, bow, A]])
+    out = lens(net, False, eps, 1e-4)
+    assert out is not None
+    ctrl, rational, far = out
+    assert not rational and ctrl.shape == (2, 3, 3)
+    assert far == pytest.approx(1e-6, rel=1e-3)
+    np.testing.assert_allclose(ctrl[:, 0], [A, A], atol=0)  # bottom collapsed at A
+    np.testing.assert_allclose(ctrl[:, -1], [C, C], atol=0)  # top collapsed at C
+    g = np.linspace(0, 1, 9)
+    np.testing.assert_allclose(_evaluate(side_row(ctrl, False, "right"), g),
+                               _evaluate(side_row(net, False, "bottom"), g), atol=1e-15)
+    np.testing.assert_allclose(_evaluate(side_row(ctrl, False, "left"), g),
+                               _evaluate(side_row(net, False, "right"), g)[::-1], atol=1e-15)
+    before, after = _loop_area_xy(net), _loop_area_xy(ctrl)
+    assert before != 0.0 and after == pytest.approx(before, rel=1e-6)  # the wire runs the same way
+    assert lens(net, False, eps, 1e-7) is None  # wider than allowed
+    assert lens(np.array([[A, A], [C, C + np.array([0, 1.0, 0])]]), False, eps, 1e-4) is None  # a triangle

@@ -38,7 +38,10 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     tick = progress("build", len(result.patches)) if progress else None
     groups = [([(p.ctrl, p.rational, model.faces[i].reversed) for i in faces
                 for p in result.faces[i].patches], solid) for faces, solid in input_groups(ins.shape)]
-    shape, joined = join(groups, model.diagonal, src, tick)
+    # a fold (a patch whose boundary runs along one curve and back, ``topology.folded``) is
+    # dropped, and a thin lens with three corners at one point made again (``topology.lens``),
+    # when it lies within half the tolerance of its boundary curve, which its neighbours share
+    shape, joined = join(groups, model.diagonal, src, tick, fold=0.5 * tol.approx_rel * model.diagonal)
     if keep is not None:
         keep["shape"] = shape
     valid = is_valid(shape)
@@ -110,6 +113,9 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             # largest distance between an edge's curve and a face side at the mapped parameter
             "t_vertices": joined["t_vertices"],
             "flat_patches_dropped": joined["flat_patches"],
+            "folds_dropped": joined["folds"],
+            "lenses_remade": joined["lenses"],
+            "fold_width_max": joined["fold_width_max"],
             "edge_deviation_max": joined["edge_deviation_max"],
             "valid": valid,
             "volume": vol_out,

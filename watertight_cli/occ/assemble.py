@@ -71,24 +71,43 @@ def _volume(shape, eps: float | None = None) -> float:
     return float(props.Mass())
 
 
-def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None) -> tuple[TopoDS_Shape, dict]:
+def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
+         fold: float = 0.0) -> tuple[TopoDS_Shape, dict]:
     """Faces of each group of patches ``(ctrl, rational, reversed)`` bounded by shared edges
     (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
-    connected part; a solid where the group was a solid's shell and no edge is left free. Returns
-    the compound and counts (free edges left, shells, solids, T-vertices, largest edge deviation)."""
-    from ..topology import connect, flat, needle, stray_needles
+    connected part; a solid where the group was a solid's shell and no edge is left free. Patches
+    without area are dropped: flat ones, needles, and folds (``topology.folded``) no farther than
+    ``fold`` (model units) from their boundary curve; thin two-sided patches with three corners
+    at one point are made again as ruled lenses (``topology.lens``) within the same distance.
+    Returns the compound and counts (free edges left, shells, solids, T-vertices, largest edge
+    deviation, patches dropped, lenses, and the largest distance of a fold or lens)."""
+    from ..topology import connect, flat, folded, lens, needle, stray_needles
     from .build import joined_faces
 
     builder = BRep_Builder()
     out = TopoDS_Compound()
     builder.MakeCompound(out)
     info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0, "t_vertices": 0,
-            "edge_deviation_max": 0.0, "flat_patches": 0}
+            "edge_deviation_max": 0.0, "flat_patches": 0, "folds": 0, "lenses": 0, "fold_width_max": 0.0}
     for nets, solid in groups:
         if not nets:
             continue
         eps = JOIN_REL * diagonal
-        keep = [n for n in nets if not (flat(n[0], n[1], eps) or needle(n[0], n[1], eps))]
+        keep = []
+        for n in nets:
+            if flat(n[0], n[1], eps) or needle(n[0], n[1], eps):
+                continue
+            width = folded(n[0], n[1], eps, fold)
+            if width is not None:
+                info["folds"] += 1
+                info["fold_width_max"] = max(info["fold_width_max"], width)
+                continue
+            remade = lens(n[0], n[1], eps, fold)
+            if remade is not None:
+                info["lenses"] += 1
+                info["fold_width_max"] = max(info["fold_width_max"], remade[2])
+                n = (remade[0], remade[1], n[2])
+            keep.append(n)
         info["flat_patches"] += len(nets) - len(keep)
         nets = keep
         topo = connect([(c, r) for c, r, _ in nets], eps)
