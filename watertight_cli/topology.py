@@ -243,6 +243,22 @@ def _grid_points(ctrl: np.ndarray, rational: bool, n: int) -> np.ndarray:
     return (h[..., :3] / h[..., 3:4]).reshape(-1, 3)
 
 
+def _collapsed(ctrl: np.ndarray, rational: bool, eps: float) -> np.ndarray | None:
+    """Per side in the loop's order (``SIDE_NAMES``: side k runs from corner k to corner k + 1 of
+    (0,0), (1,0), (1,1), (0,1)), whether it is one point within ``eps``; None when fewer than two
+    are (the corners alone decide that for most patches)."""
+    xyz = ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl
+    c = xyz[[0, -1, -1, 0], [0, 0, -1, -1]]
+    close = np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1) <= eps
+    if int(close.sum()) < 2:
+        return None
+    g = np.linspace(0.0, 1.0, 17)
+    for k in np.flatnonzero(close):
+        pts = _evaluate(side_row(ctrl, rational, SIDE_NAMES[k]), g)
+        close[k] = np.linalg.norm(pts - pts[0], axis=1).max() <= eps
+    return close if int(close.sum()) >= 2 else None
+
+
 def folded(ctrl: np.ndarray, rational: bool, eps: float, width: float) -> float | None:
     """A patch whose boundary runs along one curve and back: two of its sides collapse onto points
     (within ``eps``) and the other two are one curve, run in the two directions around the patch
@@ -252,26 +268,17 @@ def folded(ctrl: np.ndarray, rational: bool, eps: float, width: float) -> float 
     direction, which BRepCheck rejects (bad orientation in the solid), and the STEP reader rebuilds
     the pcurves of one with two adjacent collapsed sides (read back trimmed, with 0.009 edge
     tolerances). Dropped, its neighbours pair directly. Stage 2 makes them where a sliver cell
-    between two slab lines that both lie along one edge gets that edge's curve on both rungs,
-    and where a triangular cell at a crossing gets one curve on both live sides
-    (gmsh__wing_fuselage.step faces 9 and 13: folds 1e-5 wide and 0.35 long, and curves 0.036
-    long). A full turn of a surface of revolution between two poles has the same boundary but is
-    far from it, and is kept."""
-    xyz = ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl
-    c = xyz[[0, -1, -1, 0], [0, 0, -1, -1]]  # corners (0,0), (1,0), (1,1), (0,1): the loop's order
-    if int((np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1) <= eps).sum()) < 2:
+    between two slab lines that both lie along one edge gets that edge's curve on both rungs
+    (gmsh__wing_fuselage.step face 9: 1e-5 wide, 0.35 long), and where both live sides of a cell
+    take one curve (the wing at vertex 11, beside its 0.036 long edge 23). A full turn of a
+    surface of revolution between two poles has the same boundary but is far from it, and is
+    kept."""
+    dead = _collapsed(ctrl, rational, eps)
+    if dead is None or int(dead.sum()) != 2:
         return None
+    a, b = (side_row(ctrl, rational, SIDE_NAMES[k]) for k in np.flatnonzero(~dead))
     g = np.linspace(0.0, 1.0, 17)
-    live = []
-    for name in SIDE_NAMES:  # bottom, right, top, left: the loop runs top and left backwards
-        row = side_row(ctrl, rational, name)
-        pts = _evaluate(row, g)
-        if np.linalg.norm(pts - pts[0], axis=1).max() > eps:
-            live.append((row, pts))
-    if len(live) != 2:
-        return None
-    (a, pa), (b, pb) = live
-    if project(a, pb)[1].max() > eps or project(b, pa)[1].max() > eps:
+    if project(a, _evaluate(b, g))[1].max() > eps or project(b, _evaluate(a, g))[1].max() > eps:
         return None
     far = float(project(a, _grid_points(ctrl, rational, 9))[1].max())
     return far if far <= width else None
@@ -288,32 +295,24 @@ def lens(ctrl: np.ndarray, rational: bool, eps: float, width: float) -> tuple[np
     of a face, where two of its edges run together to a vertex (gmsh__wing_fuselage.step face 9,
     edges 28 and 29: 1.1e-6 apart over 0.036); written as it was, the STEP reader rebuilt its
     pcurves (read back trimmed, with 0.009 edge tolerances)."""
-    xyz = ctrl[..., :3] / ctrl[..., 3:4] if rational else ctrl
-    c = xyz[[0, -1, -1, 0], [0, 0, -1, -1]]  # corners (0,0), (1,0), (1,1), (0,1): the loop's order
-    close = np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1) <= eps  # side k: corner k -> k+1
-    if int(close.sum()) != 2:
+    dead = _collapsed(ctrl, rational, eps)
+    if dead is None or int(dead.sum()) != 2:
         return None
-    k = next((k for k in range(4) if close[k] and close[(k + 1) % 4]), None)
+    k = next((k for k in range(4) if dead[k] and dead[(k + 1) % 4]), None)
     if k is None:
         return None
     odd = (k + 3) % 4  # the corner C the two live sides meet at, opposite the shared corner k + 1
-    g = np.linspace(0.0, 1.0, 17)
-    names = ("bottom", "right", "top", "left")  # side k of the loop, corner k -> corner k + 1
-    for side in (k, (k + 1) % 4):
-        pts = _evaluate(side_row(ctrl, rational, names[side]), g)
-        if np.linalg.norm(pts - pts[0], axis=1).max() > eps:
-            return None
 
     def along(side: int, into_c: bool) -> np.ndarray:
-        """The live side as a row from A to C (sides 0 and 1 run forward in the loop)."""
-        row = side_row(ctrl, rational, names[side])
-        forward = side in (0, 1)
-        return row if forward == into_c else row[::-1]
+        """The live side as a row from A to C (bottom and right run forward in the loop)."""
+        row = side_row(ctrl, rational, SIDE_NAMES[side])
+        return row if (side in (0, 1)) == into_c else row[::-1]
 
     first = along((odd + 3) % 4, True)  # the side into C, run A -> C in the loop
     second = along(odd, False)  # the side out of C, which the loop runs C -> A
     n = max(len(first), len(second)) - 1
     first, second = (elevation_matrix(len(r) - 1, n - len(r) + 1) @ r for r in (first, second))
+    g = np.linspace(0.0, 1.0, 17)
     far = max(float(project(first, _evaluate(second, g))[1].max()),
               float(project(first, _grid_points(ctrl, rational, 9))[1].max()))
     if far > width:
@@ -321,9 +320,7 @@ def lens(ctrl: np.ndarray, rational: bool, eps: float, width: float) -> tuple[np
     # left (s = 0) is the second side and right (s = 1) the first: the loop then runs A -> C on
     # the right and back on the left, as the old one ran A -> C on the first and back on the second
     H = np.stack([second, first])
-    out_rational = rational or not (np.allclose(first[:, 3], 1.0, rtol=0, atol=1e-15)
-                                    and np.allclose(second[:, 3], 1.0, rtol=0, atol=1e-15))
-    return (H if out_rational else np.ascontiguousarray(H[..., :3])), out_rational, far
+    return (H if rational else np.ascontiguousarray(H[..., :3])), rational, far
 
 
 def stray_needles(topo: Topology, nets: list[tuple[np.ndarray, bool]], eps: float) -> set[int]:
