@@ -36,8 +36,9 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
 
     t = time.perf_counter()
     tick = progress("build", len(result.patches)) if progress else None
-    groups = [([(p.ctrl, p.rational, model.faces[i].reversed) for i in faces
-                for p in result.faces[i].patches], solid) for faces, solid in input_groups(ins.shape)]
+    nets, quads = _untriangle(result, tol, model.diagonal)
+    groups = [([(c, r, model.faces[i].reversed) for i in faces for c, r in nets[i]], solid)
+              for faces, solid in input_groups(ins.shape)]
     # a fold (a patch whose boundary runs along one curve and back, ``topology.folded``) is
     # dropped, and a thin lens with three corners at one point made again (``topology.lens``),
     # when it lies within half the tolerance of its boundary curve, which its neighbours share
@@ -58,7 +59,8 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
         # stage-1 patch's own deviation (its bound, and near trimming sides that the loop closure
         # moved, their sampled distance from S(pcurve)); the certified bound (which sums the steps'
         # bounds and the face's whole closure) decides where it holds
-        measured = fs.deviation_sampled + face.approximation
+        measured = fs.deviation_sampled + face.approximation + quads["per_face"].get(fr.face, 0.0)
+        bound += quads["per_face"].get(fr.face, 0.0)
         deviation = min(bound, measured)
         allowed = allowed_base + input_gap.get(fr.face, 0.0)
         frep.update({
@@ -75,7 +77,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
         faces.append((deviation, allowed, fs, bound))
     i4_fail = [f for f, (d, a, _, _) in zip(result.faces, faces, strict=True) if d > a]
     problems = [p for _, _, fs, _ in faces for p in fs.problems]
-    degrees = [max(p.degrees) for p in result.patches]
+    degrees = [max(c.shape[0], c.shape[1]) - 1 for face in nets for c, _ in face]
     vol_kernel = volume(ins.shape, adaptive=True) if model.solids else None
     vol_out = volume(shape) if joined["solids"] else None
 
@@ -116,6 +118,11 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "folds_dropped": joined["folds"],
             "lenses_remade": joined["lenses"],
             "fold_width_max": joined["fold_width_max"],
+            # patches with one collapsed side, made again with four (``core.triangle``), those
+            # kept (no fit within the budget), and the largest two-sided distance of a new one
+            "triangles_remade": quads["remade"],
+            "triangles_kept": quads["kept"],
+            "triangle_deviation_max": quads["deviation_max"],
             "edge_deviation_max": joined["edge_deviation_max"],
             "valid": valid,
             "volume": vol_out,
@@ -137,6 +144,33 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     report["ok"] = all(invariants.values())
     report["timings"] = times
     return report
+
+
+def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
+    """Per face, its patches as (ctrl, rational) for the build, where each patch with exactly one
+    collapsed side is made again as a four-sided patch (``core.triangle.quad_from_triangle``)
+    when it fits within half the tolerance: with a collapsed side the B-rep has a degenerated
+    edge, and no tessellation of it is closed. The fit's deviation is added to its face's."""
+    from .core.triangle import collapsed_side, quad_from_triangle
+    from .topology import JOIN_REL
+
+    eps, budget = JOIN_REL * diagonal, 0.5 * tol.approx_rel * diagonal
+    info = {"remade": 0, "kept": 0, "deviation_max": 0.0, "per_face": {}}
+    nets = []
+    for fr in result.faces:
+        face = []
+        for p in fr.patches:
+            quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree)
+            if quad is None:
+                info["kept"] += int(collapsed_side(p.ctrl, eps) is not None)
+                face.append((p.ctrl, p.rational))
+                continue
+            info["remade"] += 1
+            info["deviation_max"] = max(info["deviation_max"], quad[2])
+            info["per_face"][fr.face] = max(info["per_face"].get(fr.face, 0.0), quad[2])
+            face.append((quad[0], quad[1]))
+        nets.append(face)
+    return nets, info
 
 
 def _local_input_gaps(model, gaps, tol: Tolerances) -> dict[int, float]:

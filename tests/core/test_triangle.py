@@ -1,0 +1,114 @@
+"""Patches with one collapsed side made again with four live sides (``core.triangle``)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from watertight_cli.core.bezier import curve_split, rational_surface_eval_grid, surface_eval_grid
+from watertight_cli.core.triangle import collapsed_side, domain_map, quad_from_triangle
+
+EPS = 1e-12
+
+
+def _triangle(p: int, q: int, bump: float, angle: float) -> np.ndarray:
+    """A polynomial net of degree (p, q) whose side s = 0 is one point (the origin): the ruled
+    map (s, t) -> s * (direction at angle t * angle) composed with z = bump * (x^2 - y)."""
+    s = np.linspace(0.0, 1.0, p + 1)[:, None]
+    t = np.linspace(0.0, 1.0, q + 1)[None, :]
+    x = s * (1.0 + 0.0 * t)
+    y = s * t * np.tan(angle)
+    z = bump * (x * x - y) * (s > 0)
+    return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+
+
+def test_a_flat_triangle_is_made_exactly_with_the_same_sides():
+    P = _triangle(3, 1, 0.0, 0.7)
+    assert collapsed_side(P, EPS) == 0
+    Q, rational, dev = quad_from_triangle(P, False, EPS, 1e-6)
+    assert not rational and Q.shape == (4, 4, 3)
+    assert dev < 1e-12
+    # the bottom and the top are P's own curves, the right side is split in two at M
+    assert np.allclose(Q[:, 0], P[:, 0], atol=1e-14)
+    assert np.allclose(Q[0, :], P[:, -1], atol=1e-14)
+    lower, upper = curve_split(P[-1, :], 0.5)
+    g = np.linspace(0.0, 1.0, 9)
+    q_pts = surface_eval_grid(Q, [1.0], g)[0]
+    assert np.allclose(q_pts, surface_eval_grid(lower[None], [0.0], g)[0], atol=1e-13)
+    # no side is collapsed any more
+    assert collapsed_side(Q, 1e-9) is None
+    for side in (Q[:, 0], Q[-1, :], Q[:, -1], Q[0, :]):
+        assert np.linalg.norm(side - side[0], axis=-1).max() > 1e-3
+
+
+def test_the_new_patch_turns_the_same_way():
+    P = _triangle(4, 2, 0.3, 0.9)
+    Q, _, dev = quad_from_triangle(P, False, EPS, 1e-3)
+    g = np.linspace(0.1, 0.9, 5)
+
+    def normal(net):
+        ds = surface_eval_grid(np.diff(net, axis=0), g, g)
+        dt = surface_eval_grid(np.diff(net, axis=1), g, g)
+        return np.cross(ds, dt).reshape(-1, 3)
+
+    assert (normal(Q) @ normal(P).sum(axis=0)).min() > 0.0
+    assert dev <= 1e-3
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 3), st.integers(1, 4), st.integers(1, 3), st.floats(0.0, 0.5), st.floats(0.3, 1.2))
+def test_any_turn_of_the_net_gives_the_same_surface(k, p, q, bump, angle):
+    """The collapsed side may be any of the four; the new patch covers the same surface within
+    the deviation it reports, and its boundary keeps the triangle's three corners."""
+    P = np.rot90(_triangle(p, q, bump, angle), -k).copy()
+    assert collapsed_side(P, EPS) == k
+    out = quad_from_triangle(P, False, EPS, 1e-2)
+    if out is None:
+        return
+    Q, _, dev = out
+    g = np.linspace(0.0, 1.0, 21)
+    on_p = surface_eval_grid(P, g, g).reshape(-1, 3)
+    on_q = surface_eval_grid(Q, g, g).reshape(-1, 3)
+    d = np.linalg.norm(on_q[:, None] - on_p[None], axis=2)
+    # grid-to-grid distances exceed the true ones by at most the grid spacing on the patches
+    spacing = max(np.linalg.norm(np.diff(surface_eval_grid(n, g, g), axis=a), axis=-1).max()
+                  for n in (P, Q) for a in (0, 1))
+    assert d.min(axis=1).max() <= dev + spacing
+    assert d.min(axis=0).max() <= dev + spacing
+    corners = {tuple(np.round(c, 9)) for c in P[[0, 0, -1, -1], [0, -1, 0, -1]]}
+    assert corners <= {tuple(np.round(c, 9)) for c in Q[[0, 0, -1, -1], [0, -1, 0, -1]]}
+
+
+def test_a_rational_triangle_keeps_its_curves_with_the_weights_agreed_at_the_collapsed_corner():
+    P = _triangle(3, 2, 0.2, 0.8)
+    H = np.concatenate([P, np.ones(P.shape[:2] + (1,))], axis=-1)
+    w = 1.0 + 0.3 * np.linspace(0, 1, 3)[None, :] + 0.2 * np.linspace(0, 1, 4)[:, None]
+    H = H * w[..., None]
+    Q, rational, dev = quad_from_triangle(H, True, EPS, 1e-3)
+    assert rational and dev <= 1e-3
+    # the top (t = 1 of P, from the collapsed corner) is the same point set after the Moebius
+    # change: every sample of it lies on Q's left side
+    g = np.linspace(0.0, 1.0, 41)
+    top = rational_surface_eval_grid(H, g, [1.0])[:, 0]
+    left = rational_surface_eval_grid(Q, [0.0], np.linspace(0.0, 1.0, 2001))[0]
+    assert np.linalg.norm(top[:, None] - left[None], axis=2).min(axis=1).max() < 1e-3
+    assert Q[0, 0, 3] == H[0, 0, 3]
+
+
+def test_a_patch_with_no_or_two_collapsed_sides_is_left_alone():
+    grid = np.meshgrid(np.linspace(0, 1, 3), np.linspace(0, 2, 3), indexing="ij")
+    box = np.stack(list(grid) + [np.zeros((3, 3))], -1)
+    assert quad_from_triangle(box, False, EPS, 1.0) is None
+    lens = _triangle(3, 2, 0.0, 0.5)
+    lens[-1] = lens[-1, :1]
+    assert quad_from_triangle(lens, False, EPS, 1.0) is None
+
+
+def test_the_domain_map_sends_the_sides_where_they_belong():
+    g = np.linspace(0.0, 1.0, 11)
+    z, o = np.zeros_like(g), np.ones_like(g)
+    assert np.allclose(np.stack(domain_map(g, z)), np.stack([g, z]))
+    assert np.allclose(np.stack(domain_map(o, g)), np.stack([o, g / 2]))
+    assert np.allclose(np.stack(domain_map(g, o)), np.stack([o, 1 - g / 2]))
+    assert np.allclose(np.stack(domain_map(z[1:], g[1:])), np.stack([g[1:], o[1:]]))

@@ -1,0 +1,253 @@
+"""A patch with one collapsed side, made again as a four-sided patch with no collapsed side.
+
+Stage 1 leaves triangular cells where a loop turns at a corner of its face (two trimming edges
+meeting at a vertex that is the loop's extreme in the slab direction) and at poles. Written as it
+is, such a patch has a degenerated edge, and any tessellation of it holds a triangle with two
+nodes at the collapsed point, so no mesh of the model is closed (OCCT's own sphere fails the
+same way). The patch P is a triangle A, B, C: its side at s = 0 collapses onto A, the bottom
+(t = 0) runs A -> B, the right side (s = 1) B -> C and the top (t = 1) A -> C. The new patch Q
+has corners A, B, M, C with M the midpoint (in parameter) of the side opposite A, so its four
+sides are the bottom, the two halves of the right side and the top, exactly the old curves
+(elevated; the top's weights rescaled by a Moebius change of parameter where P is rational so
+that its weight at A is the bottom's). Its inner control points are fitted, by linear least
+squares with fixed weights, to P composed with a map m of [0, 1]^2 onto the triangle that sends
+Q's sides onto those curves at those parameters. Q's corner at M is flat (its two sides run on
+in one line), so the patch's Jacobian vanishes there; the fit is rejected where its normal
+turns against P's on an inner grid, or where its net blows up.
+
+The fit's deviation is measured by sampling, both ways: from Q's points on a grid finer than the
+fit's (offset from it) to their foot points on P, started at m of the same parameters, and from
+P's points at m of that grid to their foot points on Q. It bounds the two-sided distance between
+the surfaces up to the sampling (m covers the triangle). Pure numpy: arrays in, arrays out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .bernstein import basis
+from .bezier import curve_split, elevate_curve
+
+#: samples per degree in each direction of the fit and of the check (the check's grid is offset,
+#: so no check point is a fit point)
+_FIT_PER_DEGREE = 2
+_CHECK_PER_DEGREE = 3
+#: degrees tried above the lowest (max of P's degrees): a patch that needs more is kept as it is
+_RAISE = 4
+#: weight of the pull towards the Coons net, relative to the fit's mean squared column norm
+_PULL = 1e-4
+#: how far (x the boundary's size) an inner control point may lie from the boundary's box
+_BLOWN_UP = 4.0
+#: a first fit farther than this (x the budget) is not tried at higher degrees
+_HOPELESS = 4.0
+
+
+def collapsed_side(ctrl: np.ndarray, eps: float) -> int | None:
+    """How many quarter turns (``np.rot90`` on the first two axes) bring the one collapsed side of
+    a net (Cartesian or homogeneous, (m+1, n+1, d)) to s = 0; None unless exactly one side is
+    collapsed (every control point of it within ``eps`` of its first)."""
+    xyz = ctrl[..., :3] / ctrl[..., 3:4] if ctrl.shape[-1] == 4 else ctrl
+    found = []
+    for k in range(4):
+        r = np.rot90(xyz, k)
+        if float(np.linalg.norm(r[0] - r[0, 0], axis=-1).max()) <= eps:
+            found.append(k)
+    return found[0] if len(found) == 1 else None
+
+
+def domain_map(sigma: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The map m from Q's square onto P's triangle (broadcast over sigma, tau). On Q's sides:
+    m(σ, 0) = (σ, 0), m(0, τ) = (τ, 1), m(1, τ) = (1, τ / 2), m(σ, 1) = (1, 1 - σ / 2); near
+    Q's corner (0, 0) the angle τ / (σ + τ) picks the direction out of A. Orientation preserving."""
+    s = 1.0 - (1.0 - sigma) * (1.0 - tau)
+    total = sigma + tau
+    g = np.where(total > 0.0, tau / np.where(total > 0.0, total, 1.0), 0.0)
+    t = g + sigma * (tau / 2.0 - tau / (1.0 + tau)) + tau * (1.0 - sigma / 2.0 - 1.0 / (1.0 + sigma))
+    return s, np.clip(t, 0.0, 1.0)
+
+
+def _homogeneous(ctrl: np.ndarray, rational: bool) -> np.ndarray:
+    if rational:
+        return np.asarray(ctrl, dtype=float)
+    return np.concatenate([ctrl, np.ones(ctrl.shape[:2] + (1,))], axis=-1)
+
+
+def _eval_points(H: np.ndarray, s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Cartesian points of the homogeneous net H at the pairs (s[k], t[k])."""
+    h = _pairs(basis(H.shape[0] - 1, s), H, basis(H.shape[1] - 1, t))
+    return h[:, :3] / h[:, 3:4]
+
+
+def _pairs(bs: np.ndarray, H: np.ndarray, bt: np.ndarray) -> np.ndarray:
+    """sum_ij bs[k, i] H[i, j] bt[k, j] per k: one matrix product, then a row-wise sum."""
+    rows = (bs @ H.reshape(H.shape[0], -1)).reshape(len(bs), H.shape[1], H.shape[2])
+    return np.einsum("kjd,kj->kd", rows, bt)
+
+
+def _boundary(P: np.ndarray, n: int) -> np.ndarray:
+    """Q's net of degree (n, n) with its boundary rows set (inner points zero), from P
+    (homogeneous, collapsed at s = 0); None where the weights cannot be made to agree at A."""
+    bottom, right, top = P[:, 0], P[-1, :], P[:, -1]
+    lower, upper = curve_split(right, 0.5)
+    wb, wt = bottom[0, 3], top[0, 3]
+    if wb <= 0.0 or wt <= 0.0:
+        return None
+    if wb != wt:
+        # a Moebius change of the top's parameter: weights times lam c^k keep the curve, and keep
+        # the weight at C (k = p) while the weight at A becomes the bottom's
+        p = len(top) - 1
+        c = (wt / wb) ** (1.0 / p)
+        lam = wb / wt
+        top = top * (lam * c ** np.arange(p + 1))[:, None]
+    Q = np.zeros((n + 1, n + 1, 4))
+    up = lambda row: elevate_curve(row, n - (len(row) - 1))  # noqa: E731
+    Q[:, 0] = up(bottom)
+    Q[0, :] = up(top)
+    Q[-1, :] = up(lower)
+    Q[:, -1] = up(upper[::-1])
+    Q[0, 0] = Q[:, 0][0]  # the bottom's point and weight at A (the top's agree to rounding)
+    return Q
+
+
+def _coons(w: np.ndarray) -> np.ndarray:
+    """The bilinearly blended Coons net of a net's boundary rows ((n+1, n+1, ...) values)."""
+    n = w.shape[0] - 1
+    u = np.linspace(0.0, 1.0, n + 1).reshape((-1, 1) + (1,) * (w.ndim - 2))
+    v = np.linspace(0.0, 1.0, n + 1).reshape((1, -1) + (1,) * (w.ndim - 2))
+    return ((1 - u) * w[:1, :] + u * w[-1:, :] + (1 - v) * w[:, :1] + v * w[:, -1:]
+            - ((1 - u) * (1 - v) * w[0, 0] + u * (1 - v) * w[-1, 0]
+               + (1 - u) * v * w[0, -1] + u * v * w[-1, -1]))
+
+
+def quad_from_triangle(ctrl: np.ndarray, rational: bool, eps: float, budget: float,
+                       max_degree: int = 25) -> tuple[np.ndarray, bool, float] | None:
+    """Q for a patch with exactly one collapsed side (within ``eps``): (ctrl, rational, deviation)
+    with the net in the input's orientation (same loop direction and normal), its degree the
+    lowest from max(P's degrees) up to ``_RAISE`` more (and ``max_degree``) whose sampled
+    deviation from P is at most ``budget``; None for any other patch, or when no degree fits,
+    the fit folds or its net blows up."""
+    k = collapsed_side(ctrl, eps)
+    if k is None:
+        return None
+    P = np.rot90(_homogeneous(ctrl, rational), k).copy()
+    start = max(P.shape[0], P.shape[1]) - 1
+    for n in range(max(start, 2), min(max(start, 2) + _RAISE, max_degree) + 1):
+        fitted = _fit(P, n)
+        if fitted is None:
+            return None
+        Q, dev = fitted
+        if dev <= budget:
+            Q = np.rot90(Q, -k).copy()
+            return (Q if rational else np.ascontiguousarray(Q[..., :3] / Q[..., 3:4])), rational, dev
+        if dev > _HOPELESS * budget:
+            # raising the degree gains a factor of 1.5 to 2 at most over the few degrees tried
+            # (a sphere's quarter at its pole, degree 11 to 20: 2.8e-3 to 4.9e-4, where the
+            # approximated patches make a slight cone that no smooth corner follows)
+            return None
+    return None
+
+
+def _fit(P: np.ndarray, n: int) -> tuple[np.ndarray, float] | None:
+    Q = _boundary(P, n)
+    if Q is None:
+        return None
+    w = _coons(Q[..., 3])
+    if float(w[1:-1, 1:-1].min(initial=1.0)) <= 0.0:
+        return None
+    Q[1:-1, 1:-1, 3] = w[1:-1, 1:-1]
+    g = np.linspace(0.0, 1.0, _FIT_PER_DEGREE * n + 1)
+    sg, tg = np.meshgrid(g, g, indexing="ij")
+    sg, tg = sg.ravel(), tg.ravel()
+    target = _eval_points(P, *domain_map(sg, tg))
+    bs, bt = basis(n, sg), basis(n, tg)
+    B = (bs[:, :, None] * bt[:, None, :]).reshape(len(sg), -1)  # (k, (n+1)^2)
+    W = B @ Q[..., 3].ravel()
+    inner = np.zeros((n + 1, n + 1), bool)
+    inner[1:-1, 1:-1] = True
+    inner = inner.ravel()
+    Qh = Q.reshape(-1, 4)
+    # Euclidean residual (B h - W X) / W, linear in the inner homogeneous points h
+    rhs = (W[:, None] * target - B[:, ~inner] @ Qh[~inner, :3]) / W[:, None]
+    A = B[:, inner] / W[:, None]
+    if A.shape[1]:
+        # the high-degree inner points are nearly dependent on the samples, and a plain fit blows
+        # the net up (a half disc at degree 22: control points 450 x the patch's size, which the
+        # kernel's power-basis evaluation then misplaces by 0.01): pulled weakly towards the
+        # Coons net of the boundary (in homogeneous points), the net stays the patch's size
+        ref = _coons(Q[..., :3]).reshape(-1, 3)[inner]
+        mu = _PULL * float(np.einsum("ij,ij->", A, A)) / A.shape[1]
+        # normal equations (positive definite with the pull): a tenth of lstsq's time
+        N = A.T @ A
+        N[np.diag_indices_from(N)] += mu
+        sol = np.linalg.solve(N, A.T @ rhs + mu * ref)
+        Qh[inner, :3] = sol
+    Q = Qh.reshape(n + 1, n + 1, 4)
+    # check on an offset grid, and that the patch turns the same way as P (no fold)
+    c = (np.arange(_CHECK_PER_DEGREE * n) + 0.5) / (_CHECK_PER_DEGREE * n)
+    c = np.concatenate([[0.0], c, [1.0]])
+    sc, tc = np.meshgrid(c, c, indexing="ij")
+    sc, tc = sc.ravel(), tc.ravel()
+    ms, mt = domain_map(sc, tc)
+    on_q, on_p = _eval_points(Q, sc, tc), _eval_points(P, ms, mt)
+    # two-sided: Q's samples to P (from their mapped parameters), P's samples to Q
+    dev = max(float(_foot(P, on_q, ms, mt)[2].max()), float(_foot(Q, on_p, sc, tc)[2].max()))
+    if not _same_turn(P, Q) or _blown_up(Q):
+        return None
+    return Q, dev
+
+
+def _point_derivatives(H: np.ndarray, s: np.ndarray, t: np.ndarray):
+    """Cartesian S, S_s, S_t of the homogeneous net H at the pairs (s[k], t[k])."""
+    m, n = H.shape[0] - 1, H.shape[1] - 1
+    bs, bt = basis(m, s), basis(n, t)
+    h = _pairs(bs, H, bt)
+    hs = _pairs(basis(m - 1, s), m * np.diff(H, axis=0), bt) if m else np.zeros_like(h)
+    ht = _pairs(bs, n * np.diff(H, axis=1), basis(n - 1, t)) if n else np.zeros_like(h)
+    w = h[:, 3:4]
+    x = h[:, :3] / w
+    return x, (hs[:, :3] - x * hs[:, 3:4]) / w, (ht[:, :3] - x * ht[:, 3:4]) / w
+
+
+def _foot(H: np.ndarray, pts: np.ndarray, s: np.ndarray, t: np.ndarray, iters: int = 6):
+    """Foot points of the points on the patch H, (s, t, distance): damped Gauss-Newton from the
+    given start, kept in [0, 1]^2 (a foot on the patch's boundary is a local minimum there, which
+    the clipped step finds)."""
+    s, t = s.copy(), t.copy()
+    for _ in range(iters):
+        x, xs, xt = _point_derivatives(H, s, t)
+        r = x - pts
+        a, b, c = (xs * xs).sum(1), (xs * xt).sum(1), (xt * xt).sum(1)
+        f, g = (xs * r).sum(1), (xt * r).sum(1)
+        lam = 1e-12 * (a + c) + 1e-300
+        a, c = a + lam, c + lam
+        det = a * c - b * b
+        ok = det > 0
+        det = np.where(ok, det, 1.0)
+        s = np.clip(s - np.where(ok, (c * f - b * g) / det, 0.0), 0.0, 1.0)
+        t = np.clip(t - np.where(ok, (a * g - b * f) / det, 0.0), 0.0, 1.0)
+    x, _, _ = _point_derivatives(H, s, t)
+    return s, t, np.linalg.norm(x - pts, axis=1)
+
+
+def _blown_up(Q: np.ndarray) -> bool:
+    """An inner control point farther from the boundary's box centre than _BLOWN_UP x its size."""
+    x = Q[..., :3] / Q[..., 3:4]
+    edge = np.concatenate([x[0], x[-1], x[:, 0], x[:, -1]])
+    centre, size = 0.5 * (edge.min(0) + edge.max(0)), float(np.ptp(edge, axis=0).max())
+    return bool(np.linalg.norm(x - centre, axis=-1).max() > _BLOWN_UP * size)
+
+
+def _normals(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Unnormalized normals (S_s x S_t) of a homogeneous net on the grid g x g."""
+    s, t = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    _, xs, xt = _point_derivatives(H, s, t)
+    return np.cross(xs, xt)
+
+
+def _same_turn(P: np.ndarray, Q: np.ndarray) -> bool:
+    """Q's normal keeps one sign against P's mean normal on an inner grid (the patches here are
+    small pieces of one face), so Q neither folds nor turns the other way."""
+    g = np.linspace(0.05, 0.95, 12)
+    ref = _normals(P, g).sum(axis=0)
+    nq = _normals(Q, g)
+    return bool(np.linalg.norm(ref) > 0.0 and (nq @ ref).min() > 0.0)
