@@ -160,9 +160,11 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
     for fr in result.faces:
         face = []
         for p in fr.patches:
-            quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree)
+            quad = None
+            if collapsed_side(p.ctrl, eps) is not None:
+                quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree)
+                info["kept"] += quad is None
             if quad is None:
-                info["kept"] += int(collapsed_side(p.ctrl, eps) is not None)
                 face.append((p.ctrl, p.rational))
                 continue
             info["remade"] += 1

@@ -47,6 +47,11 @@ def collapsed_side(ctrl: np.ndarray, eps: float) -> int | None:
     a net (Cartesian or homogeneous, (m+1, n+1, d)) to s = 0; None unless exactly one side is
     collapsed (every control point of it within ``eps`` of its first)."""
     xyz = ctrl[..., :3] / ctrl[..., 3:4] if ctrl.shape[-1] == 4 else ctrl
+    # a collapsed side has its two corners at one point: most nets have none, and the corners
+    # alone say so (this runs on every patch of the model)
+    c = xyz[[0, -1, -1, 0], [0, 0, -1, -1]]
+    if int((np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1) <= eps).sum()) != 1:
+        return None
     found = []
     for k in range(4):
         r = np.rot90(xyz, k)
