@@ -64,6 +64,12 @@ SIDES = {
 }
 _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
+#: share of the watertight gap (``Tolerances.watertight_rel``) by which a polynomial edge curve may
+#: move when lowered to its rows' degree (``_Curves.lower``). A STEP file's 13 significant digits
+#: round a pole 50 from the origin by 5e-12, and the certified bound of a degree-25 curve so rounded
+#: is about twice that (loft_minus_cylinder's output, diagonal 81: 8e-12 for a piece 0.005 long);
+#: a move below I2's goal is no change that any check here can see
+_LOWER_REL = 1.0
 _BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
 _RUNG_FIT_REL = 0.1  # a rung's fit of K at its own parameter: within this x watertight_rel x diagonal
 _BUMP_PEAK = 1.1  # a long side bent through its T-vertices moves elsewhere by at most this x their move
@@ -162,7 +168,7 @@ class _Curves:
         if e not in self._spans:
             c = self.model.edges[e].curve
             br, sp = to_bezier(c.knots, c.degree, c.homogeneous())
-            self._spans[e] = (br, sp, c.rational)
+            self._spans[e] = (br, list(sp), c.rational)
         return self._spans[e]
 
     def rational(self, e: int) -> bool:
@@ -222,6 +228,31 @@ class _Curves:
             v = self.vertices[list(edge.vertices)]
             self._moves[e] = (v[0] - ends[0], v[1] - ends[1])
         return self._moves[e]
+
+    def lower(self, e: int, uses: list[tuple[float, float, np.ndarray, float]], limit: float) -> float:
+        """Lower each span of a polynomial edge curve to the lowest degree of the rows that take a
+        segment of it, where the reduction (ends held) stays within ``limit`` (model units,
+        certified). This tool's output writes an edge's curve as the side of its highest-degree
+        patch: an elevated form, which rounding to the file's 13 digits leaves a hair off its true
+        degree (certified 7e-13 on a side 4 long, 8e-12 on one 0.005 long and 50 from the
+        origin). Taken as it is, it would raise every lower-degree patch on the edge to that
+        degree when the output is converted again. Returns the largest reduction bound (0.0 when
+        nothing changed)."""
+        br, sp, rational = self.spans(e)
+        if rational:
+            return 0.0
+        worst = 0.0
+        for j, (x0, x1) in enumerate(zip(br[:-1], br[1:], strict=True)):
+            eps = 1e-9 * (x1 - x0)
+            degs = [r.shape[0] - 1 for lo, hi, r, _ in uses if lo >= x0 - eps and hi <= x1 + eps]
+            d = sp[j].shape[0] - 1
+            if not degs or min(degs) >= d:
+                continue
+            red, bound = reduce_curve(sp[j], max(min(degs), 1), fix_ends=1)
+            if bound <= limit:
+                sp[j] = red
+                worst = max(worst, bound)
+        return worst
 
     def decide(self, e: int, uses: list[tuple[float, float, np.ndarray, float]]) -> None:
         """Choose the shared curve of a rational edge from the (lo, hi, row, patch size) uses: C'
@@ -483,6 +514,8 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], le
     move is measured and bounded like any other). Beyond it the reference carries the piece
     (``_Ref.along``), and the rung takes the curve at its own parameter (``_rung_row``)."""
     for p in pieces:
+        if p.edge is None:
+            continue  # a side of several edges that keeps the face's own boundary (untrim._join_t_sides)
         uv = p.H[[0, -1], :2] / p.H[[0, -1], 2:3]
         if max(abs(a[0] - uv[0, 0]), abs(b[0] - uv[0, 0]), abs(a[0] - uv[1, 0])) > 2 * eps[0]:
             continue
@@ -824,6 +857,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
              for e, uses in users.items()}
     for e, uses in users.items():
         if not curves.decide_midway(e, result.plan.get(e, np.zeros(0))):
+            curves.lower(e, uses, _LOWER_REL * tol.watertight_rel * model.diagonal)
             curves.decide(e, uses)
     faces: list[FaceSubstitution] = []
     # each stage-1 patch as it is (copies: the substitution writes into the nets it keeps) and its
@@ -1202,7 +1236,7 @@ def _displace(H: np.ndarray, moves: dict, rational: bool) -> None:
 
 
 def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, diagonal: float) -> None:
-    """Make inner sides that two patches share bitwise equal (the first patch's row wins): two
+    """Make inner sides that two patches share bitwise equal (the lowest-degree row wins): two
     sides are shared when they join the same two corners (see ``_unify_corners``)."""
     items = []  # (patch index, side name, start uv, end uv)
     ends = []
@@ -1231,9 +1265,13 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
             continue
         for k in ks:
             partners[k] = [(j, ends[j] != ends[k]) for j in ks if j != k]
-        m = ks[0]
+        # the lowest-degree row wins: both rows are the same curve (S along one uv line), and a
+        # row of a patch whose interior needs a higher degree would raise its neighbour to it
+        # (loft_minus_cylinder: 213 patches one or two degrees above their own, which a second
+        # conversion gave back)
+        m = min(ks, key=lambda k: _row(patches[items[k][0]].ctrl, items[k][1]).shape[0])
         src = patches[items[m][0]]
-        for k in ks[1:]:
+        for k in ks:
             if items[k][0] == items[m][0]:
                 continue
             row = _row(src.ctrl, items[m][1])

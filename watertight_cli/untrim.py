@@ -418,7 +418,7 @@ def _thin_plan(params: np.ndarray, edge, sliver: float) -> np.ndarray:
 @dataclass
 class _Piece:
     H: np.ndarray
-    edge: int
+    edge: int | None  # None: a side of the domain made of several edges (``_join_t_sides``)
     w0: float
     w1: float
     degenerate: bool
@@ -1263,7 +1263,7 @@ def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict |
 
 
 def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray], g: _FaceGeometry,
-                 budget: float = 0.0) -> tuple[list[_Piece], float, float]:
+                 budget: float = 0.0, join_gap: float = 0.0) -> tuple[list[_Piece], float, float]:
     """The face's pcurve pieces, cut at the edge plan, near-iso coedges flattened (``_flatten``
     within ``budget``, model units) and the loops closed exactly; with 3D bounds of the moves made
     to close them (see ``_close_loops``) and to flatten."""
@@ -1278,7 +1278,73 @@ def _face_pieces(face: Face, model: Model, plan: dict[int, np.ndarray], g: _Face
     fixed, flat = _flatten(chains, g, budget)
     move = _close_loops(chains, fixed, g)
     pieces = [q for chain in chains for _, ps in chain for p in ps for q in _monotone(p, (g.ueps, g.veps))]
+    if join_gap > 0.0:
+        pieces = _join_t_sides(face, model, pieces, g, join_gap)
     return pieces, move, flat
+
+
+def _boundary_line(p: _Piece, face: Face, g: _FaceGeometry) -> tuple[int, int] | None:
+    """(axis, end) of the side of the surface's domain rectangle that a piece runs along (axis 0:
+    a v-iso line, v at its lower (end 0) or upper (1) knot; axis 1: a u-iso line), or None."""
+    s = face.surface
+    uv = p.H[:, :2] / p.H[:, 2:3]
+    for axis, knots, eps in ((0, s.vknots, g.veps), (1, s.uknots, g.ueps)):
+        c = uv[:, 1 - axis]
+        for end, x in enumerate((knots[0], knots[-1])):
+            if float(np.abs(c - x).max()) <= eps:
+                return axis, end
+    return None
+
+
+def _join_t_sides(face: Face, model: Model, pieces: list[_Piece], g: _FaceGeometry,
+                  join_gap: float) -> list[_Piece]:
+    """An untrimmed face (one loop running along the sides of its surface's domain) whose side is
+    made of several edges, as in this tool's own output where a T-vertex splits the longer side:
+    consecutive pieces on one side of the domain become one iso piece without an edge, so the face
+    is not cut at the T-vertex (a cut there would run across the patch and split its neighbour
+    across the other side in turn: converting an output again would not be idempotent). Such a side
+    keeps the face's own boundary, and stage 2 puts no shared curve into it; that is only right where
+    the side lies within ``join_gap`` (model units, the watertight gap) of every edge's curve, which
+    is checked on samples. Other faces, and sides that fail the check, are left as they are."""
+    if len(face.loops) != 1 or len(pieces) < 5:
+        return pieces
+    lines = [_boundary_line(p, face, g) for p in pieces]
+    if any(x is None for x in lines):
+        return pieces
+    # the loop's pieces in order; rotate so that a run on one side does not wrap around the start
+    k0 = next((k for k in range(len(pieces)) if lines[k] != lines[k - 1]), None)
+    if k0 is None:
+        return pieces
+    order = list(range(k0, len(pieces))) + list(range(k0))
+    runs: list[list[int]] = []
+    for k in order:
+        if runs and lines[runs[-1][-1]] == lines[k]:
+            runs[-1].append(k)
+        else:
+            runs.append([k])
+    out: list[_Piece] = []
+    for run in runs:
+        ps = [pieces[k] for k in run]
+        edges = {p.edge for p in ps}
+        if len(edges) < 2 or any(p.degenerate for p in ps) or not all(
+                _on_edge(p, face, model) <= join_gap for p in ps):
+            out.extend(ps)
+            continue
+        axis = lines[run[0]][0]  # the coordinate that runs along the side
+        ends = np.concatenate([p.H[[0, -1]] / p.H[[0, -1], 2:3] for p in ps])
+        a, b = ends[np.argmin(ends[:, axis])], ends[np.argmax(ends[:, axis])]
+        out.append(_Piece(np.array([a, b]), None, 0.0, 0.0, False, None))
+    return out
+
+
+def _on_edge(p: _Piece, face: Face, model: Model) -> float:
+    """Sampled distance between a piece's edge curve and the face's surface along the piece."""
+    curve = model.edges[p.edge].curve
+    if curve is None or p.pcurve is None:
+        return float("inf")
+    w = p.w0 + np.linspace(0.0, 1.0, 9) * (p.w1 - p.w0)
+    on_face = face.surface.evaluate(p.pcurve.evaluate(w))
+    return float(np.linalg.norm(curve.evaluate(w) - on_face, axis=1).max())
 
 
 def _monotone(p: _Piece, eps) -> list[_Piece]:
@@ -1305,7 +1371,8 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     g = g or _FaceGeometry(face, model.diagonal, tol)
     fr.eps = (g.ueps_lines, g.veps)
     ctx = _FaceContext(face, g, tol.approx_rel * model.diagonal, tol.max_degree)
-    pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal)
+    pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal,
+                                      tol.watertight_rel * model.diagonal)
     fr.closure = move + flat
     fr.approximated = bool(flat > g.snap)
     reparam = 0.0
@@ -1315,7 +1382,12 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
         reparam += time.perf_counter() - t
     t = time.perf_counter()
     for p in fr.patches:
-        p.ctrl = compact(p.ctrl, p.rational)
+        # a sub-box is the surface's own span at its own degree: only composition writes degrees
+        # above what a patch needs. Reducing a box anyway would lower this tool's own output (whose
+        # patches may hold a short piece of an edge curve that is its degree within 1e-13 of its
+        # size) on a second conversion
+        if not p.box:
+            p.ctrl = compact(p.ctrl, p.rational)
     reparam += time.perf_counter() - t
     fr.times = {"cells": time.perf_counter() - t0 - reparam, "reparam": reparam}
     if fr.snapped:
@@ -1485,7 +1557,7 @@ def _unshared_rungs(fr: FaceResult, slide: float) -> int:
     piece, or the edge's parameter is too far from affine along it)."""
     from .substitute import _rung_ref, _side_length  # imported here: substitute imports this module
 
-    iso = [q for q in fr.iso_pieces if not q.degenerate]
+    iso = [q for q in fr.iso_pieces if not q.degenerate and q.edge is not None]
     if not iso or fr.eps is None:
         return 0
     ends = np.array([q.H[[0, -1], :2] / q.H[[0, -1], 2:3] for q in iso])  # (k, 2, 2)
