@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from watertight_cli import substitute as S
 from watertight_cli.core.bernstein import product
-from watertight_cli.core.bezier import curve_eval, curve_segment
+from watertight_cli.core.bezier import curve_eval, curve_segment, rational_curve_eval
 from watertight_cli.gaps import vertex_corners
 from watertight_cli.substitute import _divide, _through, _weight_factor, substitute
 from watertight_cli.tolerances import Tolerances
@@ -145,17 +145,27 @@ def test_fixture_converts_with_invariants(tmp_path, name):
         assert rep["after"]["volume_change_rel"] <= max(1e-6, 20 * rep["before"]["gap_max"] / rep["diagonal"])
 
 
-def test_converting_twice_changes_nothing(tmp_path):
-    """Idempotence: an output converted again comes back within 1e-12 of the diagonal."""
+@pytest.mark.parametrize("name", [
+    "torus.step",
+    "two_solids.step",  # T-vertices on untrimmed sides; elevated edge curves (was 28 -> 38 faces)
+    pytest.param("loft_minus_cylinder.step", marks=pytest.mark.slow),  # was 357 -> 757 faces
+    pytest.param("plate_with_holes.step", marks=pytest.mark.slow),
+    pytest.param("bspline_boolean.step", marks=pytest.mark.slow),
+])
+def test_converting_twice_changes_nothing(tmp_path, name):
+    """Idempotence: an output converted again has the same faces at the same degrees, and its
+    control points come back within 1e-12 of the diagonal."""
     from watertight_cli.convert import convert_file
     from watertight_cli.inspect import inspect
 
     once, twice = tmp_path / "1.step", tmp_path / "2.step"
-    convert_file(str(fixture_path("torus.step")), str(once), Tolerances())
+    convert_file(str(fixture_path(name)), str(once), Tolerances())
     rep = convert_file(str(once), str(twice), Tolerances())
     assert rep["ok"]
     a, b = inspect(str(once), Tolerances()).model, inspect(str(twice), Tolerances()).model
     assert len(a.faces) == len(b.faces)
+    degrees = lambda m: sorted((f.surface.udegree, f.surface.vdegree) for f in m.faces)  # noqa: E731
+    assert degrees(a) == degrees(b)
     pa = np.concatenate([f.surface.poles.reshape(-1, 3) for f in a.faces])
     pb = np.concatenate([f.surface.poles.reshape(-1, 3) for f in b.faces])
     from scipy.spatial import cKDTree
@@ -742,3 +752,71 @@ def test_copied_row_with_other_weights_keeps_the_sides_through_its_corners():
                                    rational_curve_eval(_row(H, name), g), atol=1e-12)
     got = rational_curve_eval(_row(p.ctrl, "bottom"), g)  # the same curve (at another speed)
     assert project(_row(H, "bottom"), got)[1].max() < 1e-12
+
+
+def _rounded(x: np.ndarray, digits: int = 13) -> np.ndarray:
+    """``x`` rounded to ``digits`` significant digits, as a STEP file stores it."""
+    return np.array([float(f"{v:.{digits - 1}e}") for v in x.ravel()]).reshape(x.shape)
+
+
+def _curves_with(span: np.ndarray, rational: bool) -> S._Curves:
+    curves = S._Curves.__new__(S._Curves)
+    curves._spans = {0: (np.array([0.0, 1.0]), [span], rational)}
+    return curves
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 18), st.booleans(), st.integers(0, 10_000))
+def test_an_elevated_edge_curve_comes_back_to_its_rows_degree(k, up, rational, seed):
+    """A curve of degree k written elevated and rounded to 13 digits (this tool's output: an edge's
+    curve is the side of its highest-degree patch) is lowered to the degree k of a row that takes it,
+    within the limit, and moves by no more than that; a curve that truly has the higher degree stays."""
+    from watertight_cli.core.bezier import elevate_curve
+
+    rng = np.random.default_rng(seed)
+    P = rng.uniform(-50.0, 50.0, size=(k + 1, 3))
+    if rational:
+        w = rng.uniform(0.5, 2.0, size=k + 1)
+        P = np.concatenate([P * w[:, None], w[:, None]], axis=1)
+    high = _rounded(elevate_curve(P, up))
+    limit = 1e-12 * 173.0  # the watertight gap of a model 173 across
+    row = np.zeros((k + 1, P.shape[1]))
+    curves = _curves_with(high.copy(), rational)
+    moved = curves.lower(0, [(0.0, 1.0, row, 1.0), (0.0, 1.0, high, 1.0)], limit)
+    low = curves.spans(0)[1][0]
+    assert low.shape[0] == k + 1 and 0.0 <= moved <= limit
+    s = np.linspace(0.0, 1.0, 65)
+    ev = (lambda c: rational_curve_eval(c, s)) if rational else (lambda c: curve_eval(c, s))  # noqa: E731
+    assert np.linalg.norm(ev(low) - ev(high), axis=1).max() <= limit
+    # a curve of the higher degree for real is not lowered
+    real = high.copy()
+    real[len(real) // 2, :3] += 1e-3 * (real[len(real) // 2, 3] if rational else 1.0)
+    curves = _curves_with(real, rational)
+    assert curves.lower(0, [(0.0, 1.0, row, 1.0)], limit) == 0.0
+    assert curves.spans(0)[1][0].shape == real.shape
+
+
+def test_a_rational_curve_a_hair_off_its_vertices_keeps_its_degree():
+    """End moves within the limit are made by the end poles: the curve keeps its degree, ends on
+    the vertices exactly, and no point moves by more than the move (the affine correction raised
+    the degree by one, and every rational patch on such an edge with it)."""
+    from types import SimpleNamespace
+
+    w = np.array([1.0, 0.7, 1.0])
+    P = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    span = np.concatenate([P * w[:, None], w[:, None]], axis=1)
+    d0, d1 = np.array([3e-13, 0.0, -2e-13]), np.array([0.0, 4e-13, 0.0])
+    curves = _curves_with(span, True)
+    curves.model = SimpleNamespace(edges=[SimpleNamespace(first=0.0, last=1.0)])
+    curves._moves = {0: (d0, d1)}
+    curves._pins = {}
+    curves.still = 1e-12
+    K = curves.exact(0, 0.0, 1.0)
+    assert K.shape == span.shape
+    np.testing.assert_array_equal(K[0, :3] / K[0, 3], P[0] + d0)
+    np.testing.assert_array_equal(K[-1, :3] / K[-1, 3], P[-1] + d1)
+    s = np.linspace(0.0, 1.0, 33)
+    assert np.linalg.norm(rational_curve_eval(K, s) - rational_curve_eval(span, s), axis=1).max() <= 4e-13
+    curves.still = 1e-13  # beyond the limit: the affine correction, one degree up
+    curves._pins = {}
+    assert curves.exact(0, 0.0, 1.0).shape[0] == span.shape[0] + 1

@@ -64,11 +64,12 @@ SIDES = {
 }
 _DIVIDE_REL = 1e-9  # relative residual of a weight division that counts as exact
 _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rational C
-#: share of the watertight gap (``Tolerances.watertight_rel``) by which a polynomial edge curve may
+#: share of the watertight gap (``Tolerances.watertight_rel``) by which an edge curve may
 #: move when lowered to its rows' degree (``_Curves.lower``). A STEP file's 13 significant digits
 #: round a pole 50 from the origin by 5e-12, and the certified bound of a degree-25 curve so rounded
 #: is about twice that (loft_minus_cylinder's output, diagonal 81: 8e-12 for a piece 0.005 long);
-#: a move below I2's goal is no change that any check here can see
+#: a move below I2's goal is no change that any check here can see. The same share bounds the end
+#: moves that a rational curve makes by its end poles instead of its affine correction (``exact``)
 _LOWER_REL = 1.0
 _BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
 _RUNG_FIT_REL = 0.1  # a rung's fit of K at its own parameter: within this x watertight_rel x diagonal
@@ -144,8 +145,11 @@ class _Curves:
     so polynomial patches stay polynomial (its sampled distance from C is recorded).
     """
 
-    def __init__(self, model: Model, poly_tol: float, max_degree: int, vertices: np.ndarray):
+    def __init__(self, model: Model, poly_tol: float, max_degree: int, vertices: np.ndarray,
+                 still: float = 0.0):
         self.model = model
+        self.still = still  # end moves up to this (model units) are made by the end poles (``exact``)
+        self._pins: dict[int, list[np.ndarray]] = {}
         self.vertices = vertices  # the corner point of each vertex (``gaps.vertex_corners``)
         self.poly_tol = poly_tol
         self.max_degree = max_degree
@@ -209,8 +213,16 @@ class _Curves:
         eps = 1e-9 * (x1 - x0)
         if lo < x0 - eps or hi > x1 + eps:
             self.straddles += 1  # the interval crosses a knot of C: K extends the span's polynomial
-        K = curve_segment(sp[j], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
         d0, d1 = self.end_moves(e)
+        if rat and max(float(np.linalg.norm(d0)), float(np.linalg.norm(d1))) <= self.still:
+            # a rational curve a hair off its vertices (this tool's own output: the vertex and
+            # the curve's end are rounded to the file's digits apart) takes them by its end poles,
+            # which moves no point by more than the move and keeps its degree; the affine
+            # correction below raises the degree by one, and a second conversion raised every
+            # rational patch on such an edge (filleted_freeform's fillet patches)
+            sp = self._pinned(e, d0, d1)
+            return curve_segment(sp[j], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
+        K = curve_segment(sp[j], (lo - x0) / (x1 - x0), (hi - x0) / (x1 - x0))
         if not (d0.any() or d1.any()):
             return K
         edge = self.model.edges[e]
@@ -221,6 +233,16 @@ class _Curves:
         Dw = product(D, K[:, 3])  # kappa * D, degree k + 1
         return np.concatenate([elevate_curve(K, 1)[:, :3] + Dw, elevate_curve(K[:, 3:], 1)], axis=1)
 
+    def _pinned(self, e: int, d0: np.ndarray, d1: np.ndarray) -> list[np.ndarray]:
+        """The rational curve's spans with its first and last pole moved by d0 and d1 (homogeneous:
+        the weight stays), so that it ends on its vertices."""
+        if e not in self._pins:
+            sp = [x.copy() for x in self.spans(e)[1]]
+            sp[0][0, :3] += d0 * sp[0][0, 3]
+            sp[-1][-1, :3] += d1 * sp[-1][-1, 3]
+            self._pins[e] = sp
+        return self._pins[e]
+
     def end_moves(self, e: int) -> tuple[np.ndarray, np.ndarray]:
         if e not in self._moves:
             edge = self.model.edges[e]
@@ -230,7 +252,7 @@ class _Curves:
         return self._moves[e]
 
     def lower(self, e: int, uses: list[tuple[float, float, np.ndarray, float]], limit: float) -> float:
-        """Lower each span of a polynomial edge curve to the lowest degree of the rows that take a
+        """Lower each span of an edge curve to the lowest degree of the rows that take a
         segment of it, where the reduction (ends held) stays within ``limit`` (model units,
         certified). This tool's output writes an edge's curve as the side of its highest-degree
         patch: an elevated form, which rounding to the file's 13 digits leaves a hair off its true
@@ -239,8 +261,6 @@ class _Curves:
         degree when the output is converted again. Returns the largest reduction bound (0.0 when
         nothing changed)."""
         br, sp, rational = self.spans(e)
-        if rational:
-            return 0.0
         worst = 0.0
         for j, (x0, x1) in enumerate(zip(br[:-1], br[1:], strict=True)):
             eps = 1e-9 * (x1 - x0)
@@ -249,6 +269,14 @@ class _Curves:
             if not degs or min(degs) >= d:
                 continue
             red, bound = reduce_curve(sp[j], max(min(degs), 1), fix_ends=1)
+            if rational:
+                # N'/W' - N/W = (N' W - N W') / (W W'): the numerator's control points over the
+                # smallest weights bound the move (convex hull), without the homogeneous bound's
+                # factor |P| that rounded weights bring
+                x = sp[j]
+                num = product(red[:, :3], x[:, 3]) - product(x[:, :3], red[:, 3])
+                wmin = float(red[:, 3].min()) * float(x[:, 3].min())
+                bound = float(np.linalg.norm(num, axis=1).max()) / wmin if wmin > 0 else np.inf
             if bound <= limit:
                 sp[j] = red
                 worst = max(worst, bound)
@@ -820,7 +848,8 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
     ``near``: per face of ``result``, the verify step's ``side_per_patch`` (measured here when
     None)."""
     curves = _Curves(model, _POLY_REL * tol.approx_rel * model.diagonal, tol.max_degree,
-                     vertex_corners(model, tol.approx_rel * model.diagonal)[0])
+                     vertex_corners(model, tol.approx_rel * model.diagonal)[0],
+                     _LOWER_REL * tol.watertight_rel * model.diagonal)
     tails = _Tails(model, result)
     curves.corner_alias = tails.corners()
     infos = []
