@@ -137,7 +137,7 @@ def quad_from_triangle(ctrl: np.ndarray, rational: bool, eps: float, budget: flo
     P = np.rot90(_homogeneous(ctrl, rational), k).copy()
     start = max(P.shape[0], P.shape[1]) - 1
     for n in range(max(start, 2), min(max(start, 2) + _RAISE, max_degree) + 1):
-        fitted = _fit(P, n)
+        fitted = _fit(P, n, budget)
         if fitted is None:
             return None
         Q, dev = fitted
@@ -152,7 +152,9 @@ def quad_from_triangle(ctrl: np.ndarray, rational: bool, eps: float, budget: flo
     return None
 
 
-def _fit(P: np.ndarray, n: int) -> tuple[np.ndarray, float] | None:
+def _fit(P: np.ndarray, n: int, budget: float = 0.0) -> tuple[np.ndarray, float] | None:
+    """Q of degree (n, n) fitted to P, and its sampled two-sided deviation (that of the coarse
+    check alone when it exceeds ``budget``); None when the weights or the fit fail."""
     Q = _boundary(P, n)
     if Q is None:
         return None
@@ -187,18 +189,26 @@ def _fit(P: np.ndarray, n: int) -> tuple[np.ndarray, float] | None:
         sol = np.linalg.solve(N, A.T @ rhs + mu * ref)
         Qh[inner, :3] = sol
     Q = Qh.reshape(n + 1, n + 1, 4)
-    # check on an offset grid, and that the patch turns the same way as P (no fold)
-    c = (np.arange(_CHECK_PER_DEGREE * n) + 0.5) / (_CHECK_PER_DEGREE * n)
-    c = np.concatenate([[0.0], c, [1.0]])
+    if not _same_turn(P, Q) or _blown_up(Q):
+        return None
+    # check on an offset grid: a coarse one first, whose deviation (a lower bound of the fine
+    # grid's) already rejects most fits that miss the budget, then the fine one
+    for per in (1, _CHECK_PER_DEGREE):
+        dev = _two_sided(P, Q, per * n)
+        if dev > budget:
+            break
+    return Q, dev
+
+
+def _two_sided(P: np.ndarray, Q: np.ndarray, k: int) -> float:
+    """Largest distance of Q's samples to P (from their mapped parameters) and of P's samples to Q,
+    on a k x k grid of cell centres plus the square's sides."""
+    c = np.concatenate([[0.0], (np.arange(k) + 0.5) / k, [1.0]])
     sc, tc = np.meshgrid(c, c, indexing="ij")
     sc, tc = sc.ravel(), tc.ravel()
     ms, mt = domain_map(sc, tc)
     on_q, on_p = _eval_points(Q, sc, tc), _eval_points(P, ms, mt)
-    # two-sided: Q's samples to P (from their mapped parameters), P's samples to Q
-    dev = max(float(_foot(P, on_q, ms, mt)[2].max()), float(_foot(Q, on_p, sc, tc)[2].max()))
-    if not _same_turn(P, Q) or _blown_up(Q):
-        return None
-    return Q, dev
+    return max(float(_foot(P, on_q, ms, mt)[2].max()), float(_foot(Q, on_p, sc, tc)[2].max()))
 
 
 def _point_derivatives(H: np.ndarray, s: np.ndarray, t: np.ndarray):
@@ -228,8 +238,12 @@ def _foot(H: np.ndarray, pts: np.ndarray, s: np.ndarray, t: np.ndarray, iters: i
         det = a * c - b * b
         ok = det > 0
         det = np.where(ok, det, 1.0)
-        s = np.clip(s - np.where(ok, (c * f - b * g) / det, 0.0), 0.0, 1.0)
-        t = np.clip(t - np.where(ok, (a * g - b * f) / det, 0.0), 0.0, 1.0)
+        s1 = np.clip(s - np.where(ok, (c * f - b * g) / det, 0.0), 0.0, 1.0)
+        t1 = np.clip(t - np.where(ok, (a * g - b * f) / det, 0.0), 0.0, 1.0)
+        step = max(float(np.abs(s1 - s).max(initial=0.0)), float(np.abs(t1 - t).max(initial=0.0)))
+        s, t = s1, t1
+        if step <= 1e-13:  # converged everywhere: the last step moved no parameter
+            break
     x, _, _ = _point_derivatives(H, s, t)
     return s, t, np.linalg.norm(x - pts, axis=1)
 
