@@ -252,34 +252,48 @@ class _Curves:
         return self._moves[e]
 
     def lower(self, e: int, uses: list[tuple[float, float, np.ndarray, float]], limit: float) -> float:
-        """Lower each span of an edge curve to the lowest degree of the rows that take a
-        segment of it, where the reduction (ends held) stays within ``limit`` (model units,
-        certified). This tool's output writes an edge's curve as the side of its highest-degree
-        patch: an elevated form, which rounding to the file's 13 digits leaves a hair off its true
-        degree (certified 7e-13 on a side 4 long, 8e-12 on one 0.005 long and 50 from the
-        origin). Taken as it is, it would raise every lower-degree patch on the edge to that
-        degree when the output is converted again. Returns the largest reduction bound (0.0 when
-        nothing changed)."""
+        """Lower each span of an edge curve towards the lowest degree of the rows that take a
+        segment of it: a degree reduction of the span (ends held), or a row that takes the whole
+        span, whichever is of the lowest degree and within ``limit`` of the span at the same
+        parameters (model units, certified). This tool's output writes an edge's curve as the
+        side of its highest-degree patch: an elevated form, which rounding to the file's 13 digits
+        leaves a hair off its true degree (certified 7e-13 on a side 4 long, 8e-12 on one 0.005
+        long and 50 from the origin), or for a rational patch that took a curve's weight function
+        the curve times a common polynomial factor, which no reduction finds. Taken as it is, it
+        would raise every lower-degree patch on the edge to that degree when the output is
+        converted again. Returns the largest bound of a change made (0.0 when none)."""
         br, sp, rational = self.spans(e)
         worst = 0.0
         for j, (x0, x1) in enumerate(zip(br[:-1], br[1:], strict=True)):
             eps = 1e-9 * (x1 - x0)
-            degs = [r.shape[0] - 1 for lo, hi, r, _ in uses if lo >= x0 - eps and hi <= x1 + eps]
+            inside = [(lo, hi, r) for lo, hi, r, _ in uses if lo >= x0 - eps and hi <= x1 + eps]
             d = sp[j].shape[0] - 1
-            if not degs or min(degs) >= d:
+            if not inside or min(r.shape[0] - 1 for *_, r in inside) >= d:
                 continue
-            red, bound = reduce_curve(sp[j], max(min(degs), 1), fix_ends=1)
-            if rational:
-                # N'/W' - N/W = (N' W - N W') / (W W'): the numerator's control points over the
-                # smallest weights bound the move (convex hull), without the homogeneous bound's
-                # factor |P| that rounded weights bring
-                x = sp[j]
-                num = product(red[:, :3], x[:, 3]) - product(x[:, :3], red[:, 3])
-                wmin = float(red[:, 3].min()) * float(x[:, 3].min())
-                bound = float(np.linalg.norm(num, axis=1).max()) / wmin if wmin > 0 else np.inf
-            if bound <= limit:
-                sp[j] = red
-                worst = max(worst, bound)
+            cols = sp[j].shape[1]
+            best = None
+            for c in sorted((r for lo, hi, r in inside if r.shape[1] == cols and r.shape[0] - 1 < d
+                             and lo <= x0 + eps and hi >= x1 - eps), key=len):
+                bound = _curve_distance(sp[j], c, rational)
+                if bound <= limit:
+                    best = (np.array(c, dtype=float), bound)
+                    break
+            # reductions from the rows' lowest degree down while they stay within the limit: a
+            # rational row with weights of true degree w takes a polynomial curve of degree k
+            # without a raise only when k + w is at most its degree (``_common_weights``), so the
+            # curve goes to its own true degree (filleted_freeform: a degree-9 row with linear
+            # weights holding a degree-8 curve written at degree 25)
+            r = max(min(c.shape[0] - 1 for *_, c in inside), 1)
+            while r >= 1 and (best is None or r < best[0].shape[0] - 1):
+                red = reduce_curve(sp[j], r, fix_ends=1)[0]
+                bound = _curve_distance(sp[j], red, rational)
+                if bound > limit:
+                    break
+                best = (red, bound)
+                r -= 1
+            if best is not None:
+                sp[j] = best[0]
+                worst = max(worst, best[1])
         return worst
 
     def decide(self, e: int, uses: list[tuple[float, float, np.ndarray, float]]) -> None:
@@ -836,6 +850,22 @@ def _missing_factors(H: np.ndarray, own: list, partner: list, axis: int, max_deg
     for f in missing:
         H = _times(H, axis, f, added)
     return H
+
+
+def _curve_distance(a: np.ndarray, b: np.ndarray, rational: bool) -> float:
+    """A certified bound of max_t |a(t) - b(t)| for two Bezier curves of any degrees (homogeneous
+    when ``rational``): the convex hull of their difference at the higher of the two degrees; for
+    rational ones that of N_b W_a - N_a W_b over the smallest weights (a's and b's, by the convex
+    hull)."""
+    if not rational:
+        k = max(len(a), len(b)) - 1
+        up = lambda c: elevate_curve(c, k - (len(c) - 1))  # noqa: E731
+        return float(np.linalg.norm(up(a) - up(b), axis=1).max())
+    wmin = float(a[:, 3].min()) * float(b[:, 3].min())
+    if wmin <= 0.0:
+        return float("inf")
+    num = product(b[:, :3], a[:, 3]) - product(a[:, :3], b[:, 3])
+    return float(np.linalg.norm(num, axis=1).max()) / wmin
 
 
 def _homog(K: np.ndarray) -> np.ndarray:
