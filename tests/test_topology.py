@@ -324,3 +324,20 @@ def test_a_thin_lens_with_three_corners_at_one_point_is_made_again_with_poles_at
     assert before != 0.0 and after == pytest.approx(before, rel=1e-6)  # the wire runs the same way
     assert lens(net, False, eps, 1e-7) is None  # wider than allowed
     assert lens(np.array([[A, A], [C, C + np.array([0, 1.0, 0])]]), False, eps, 1e-4) is None  # a triangle
+
+
+def test_a_remade_patch_that_leaves_a_side_free_goes_back():
+    """A patch with a fallback net (a triangle that the build made four-sided) whose side finds no
+    partner is put back to that net, which does share it: no free edge between the two, and the
+    revert is counted. A patch without a fallback is left as it is."""
+    from watertight_cli.occ.assemble import join
+
+    a, b = _net(0, 0.5, 0, 1, bump=0.4), _net(0.5, 1, 0, 1, bump=0.4)
+    off = b.copy()
+    off[0, :, 2] += 1e-3  # its left side leaves a's right side
+    nets = [(a, False, False), (off, False, False)]
+    _, info = join([(nets, False)], 5.0, "test", fallbacks=[{1: (b, False)}])
+    assert info["triangles_reverted"] == 1
+    assert info["free_edges"] == 6  # the outer boundary only: a and b share their side
+    _, info = join([(nets, False)], 5.0, "test")
+    assert info["triangles_reverted"] == 0 and info["free_edges"] == 8

@@ -37,12 +37,20 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     t = time.perf_counter()
     tick = progress("build", len(result.patches)) if progress else None
     nets, quads = _untriangle(result, tol, model.diagonal)
-    groups = [([(c, r, model.faces[i].reversed) for i in faces for c, r in nets[i]], solid)
-              for faces, solid in input_groups(ins.shape)]
+    groups, fallbacks = [], []
+    for faces, solid in input_groups(ins.shape):
+        items = [(c, r, model.faces[i].reversed, was) for i in faces for c, r, was in nets[i]]
+        groups.append(([it[:3] for it in items], solid))
+        fallbacks.append({k: it[3] for k, it in enumerate(items) if it[3] is not None})
     # a fold (a patch whose boundary runs along one curve and back, ``topology.folded``) is
     # dropped, and a thin lens with three corners at one point made again (``topology.lens``),
     # when it lies within half the tolerance of its boundary curve, which its neighbours share
-    shape, joined = join(groups, model.diagonal, src, tick, fold=0.5 * tol.approx_rel * model.diagonal)
+    shape, joined = join(groups, model.diagonal, src, tick, fold=0.5 * tol.approx_rel * model.diagonal,
+                         fallbacks=fallbacks)
+    # remade triangles that left a side free went back to their triangles (``occ.assemble.join``);
+    # their fit's deviation stays in their faces' I4 measure, an overestimate
+    quads["remade"] -= joined["triangles_reverted"]
+    quads["kept"] += joined["triangles_reverted"]
     if keep is not None:
         keep["shape"] = shape
     valid = is_valid(shape)
@@ -77,7 +85,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
         faces.append((deviation, allowed, fs, bound))
     i4_fail = [f for f, (d, a, _, _) in zip(result.faces, faces, strict=True) if d > a]
     problems = [p for _, _, fs, _ in faces for p in fs.problems]
-    degrees = [max(c.shape[0], c.shape[1]) - 1 for face in nets for c, _ in face]
+    degrees = [max(c.shape[0], c.shape[1]) - 1 for face in nets for c, _, _ in face]
     vol_kernel = volume(ins.shape, adaptive=True) if model.solids else None
     vol_out = volume(shape) if joined["solids"] else None
 
@@ -122,6 +130,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             # kept (no fit within the budget), and the largest two-sided distance of a new one
             "triangles_remade": quads["remade"],
             "triangles_kept": quads["kept"],
+            "triangles_reverted": joined["triangles_reverted"],
             "triangle_deviation_max": quads["deviation_max"],
             "edge_deviation_max": joined["edge_deviation_max"],
             "valid": valid,
@@ -147,10 +156,11 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
 
 
 def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
-    """Per face, its patches as (ctrl, rational) for the build, where each patch with exactly one
-    collapsed side is made again as a four-sided patch (``core.triangle.quad_from_triangle``)
-    when it fits within half the tolerance: with a collapsed side the B-rep has a degenerated
-    edge, and no tessellation of it is closed. The fit's deviation is added to its face's."""
+    """Per face, its patches as (ctrl, rational, the triangle's own net or None) for the build,
+    where each patch with exactly one collapsed side is made again as a four-sided patch
+    (``core.triangle.quad_from_triangle``) when it fits within half the tolerance: with a collapsed
+    side the B-rep has a degenerated edge, and no tessellation of it is closed. The fit's deviation
+    is added to its face's. The build puts a remade patch back where it leaves a side free."""
     from .core.triangle import collapsed_side, quad_from_triangle
     from .topology import JOIN_REL
 
@@ -165,12 +175,12 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
                 quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree)
                 info["kept"] += quad is None
             if quad is None:
-                face.append((p.ctrl, p.rational))
+                face.append((p.ctrl, p.rational, None))
                 continue
             info["remade"] += 1
             info["deviation_max"] = max(info["deviation_max"], quad[2])
             info["per_face"][fr.face] = max(info["per_face"].get(fr.face, 0.0), quad[2])
-            face.append((quad[0], quad[1]))
+            face.append((quad[0], quad[1], (p.ctrl, p.rational)))
         nets.append(face)
     return nets, info
 

@@ -1327,7 +1327,8 @@ def _join_t_sides(face: Face, model: Model, pieces: list[_Piece], g: _FaceGeomet
         ps = [pieces[k] for k in run]
         edges = {p.edge for p in ps}
         if len(edges) < 2 or any(p.degenerate for p in ps) or not all(
-                _on_edge(p, face, model) <= join_gap for p in ps):
+                _on_edge(p, face, model) <= join_gap and _vertices_on_face(p, face, model) <= join_gap
+                for p in ps):
             out.extend(ps)
             continue
         axis = lines[run[0]][0]  # the coordinate that runs along the side
@@ -1335,6 +1336,20 @@ def _join_t_sides(face: Face, model: Model, pieces: list[_Piece], g: _FaceGeomet
         a, b = ends[np.argmin(ends[:, axis])], ends[np.argmax(ends[:, axis])]
         out.append(_Piece(np.array([a, b]), None, 0.0, 0.0, False, None))
     return out
+
+
+def _vertices_on_face(p: _Piece, face: Face, model: Model) -> float:
+    """Distance of the edge's vertices at the piece's ends (where it ends at one) from the face's
+    surface there: stage 2 puts the neighbours' corners on the vertices, and a T-vertex off the
+    joined side would open a gap beside it."""
+    edge = model.edges[p.edge]
+    worst = 0.0
+    for w, v in ((edge.first, edge.vertices[0]), (edge.last, edge.vertices[1])):
+        tol_w = 1e-9 * max(abs(edge.last - edge.first), 1e-300)
+        if min(abs(p.w0 - w), abs(p.w1 - w)) <= tol_w:
+            on_face = face.surface.evaluate(p.pcurve.evaluate(np.array([w])))[0]
+            worst = max(worst, float(np.linalg.norm(model.vertices[v] - on_face)))
+    return worst
 
 
 def _on_edge(p: _Piece, face: Face, model: Model) -> float:

@@ -71,8 +71,13 @@ def _volume(shape, eps: float | None = None) -> float:
     return float(props.Mass())
 
 
+#: rounds of putting remade triangles on free edges back (``join``): each can leave a neighbour's
+#: side free that the next round finds
+_REVERT_PASSES = 3
+
+
 def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
-         fold: float = 0.0) -> tuple[TopoDS_Shape, dict]:
+         fold: float = 0.0, fallbacks: list[dict] | None = None) -> tuple[TopoDS_Shape, dict]:
     """Faces of each group of patches ``(ctrl, rational, reversed)`` bounded by shared edges
     (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
     connected part; a solid where the group was a solid's shell and no edge is left free. Patches
@@ -80,7 +85,12 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     ``fold`` (model units) from their boundary curve; thin two-sided patches with three corners
     at one point are made again as ruled lenses (``topology.lens``) within the same distance.
     Returns the compound and counts (free edges left, shells, solids, T-vertices, largest edge
-    deviation, patches dropped, lenses, and the largest distance of a fold or lens)."""
+    deviation, patches dropped, lenses, and the largest distance of a fold or lens).
+
+    ``fallbacks``, per group, maps a patch's index in the group to the net it was made from
+    (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
+    patch has a side left free, it goes back to that net and the group is connected again
+    (``triangles_reverted`` counts them)."""
     from ..topology import connect, flat, folded, lens, needle, stray_needles
     from .build import joined_faces
 
@@ -88,13 +98,16 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     out = TopoDS_Compound()
     builder.MakeCompound(out)
     info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0, "t_vertices": 0,
-            "edge_deviation_max": 0.0, "flat_patches": 0, "folds": 0, "lenses": 0, "fold_width_max": 0.0}
-    for nets, solid in groups:
+            "edge_deviation_max": 0.0, "flat_patches": 0, "folds": 0, "lenses": 0, "fold_width_max": 0.0,
+            "triangles_reverted": 0}
+    for g, (nets, solid) in enumerate(groups):
         if not nets:
             continue
+        back = dict(fallbacks[g]) if fallbacks else {}
         eps = JOIN_REL * diagonal
         keep = []
-        for n in nets:
+        for k, n in enumerate(nets):
+            n = (*n, back.get(k))
             if flat(n[0], n[1], eps) or needle(n[0], n[1], eps):
                 continue
             width = folded(n[0], n[1], eps, fold)
@@ -106,16 +119,31 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             if remade is not None:
                 info["lenses"] += 1
                 info["fold_width_max"] = max(info["fold_width_max"], remade[2])
-                n = (remade[0], remade[1], n[2])
+                n = (remade[0], remade[1], n[2], None)
             keep.append(n)
         info["flat_patches"] += len(nets) - len(keep)
         nets = keep
-        topo = connect([(c, r) for c, r, _ in nets], eps)
-        needles = stray_needles(topo, [(c, r) for c, r, _ in nets], eps)
+        topo = connect([(c, r) for c, r, _, _ in nets], eps)
+        needles = stray_needles(topo, [(c, r) for c, r, _, _ in nets], eps)
         if needles:
             info["flat_patches"] += len(needles)
             nets = [n for i, n in enumerate(nets) if i not in needles]
-            topo = connect([(c, r) for c, r, _ in nets], eps)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps)
+        for _ in range(_REVERT_PASSES):
+            # a remade triangle's new corner that its neighbour's side does not take (U_Joint_2:
+            # 8 free edges where none were before the triangles were remade) goes back to being
+            # a triangle, and the group is connected again
+            on_free = {m.patch for e in topo.edges if not e.degenerate and len(e.members) == 1
+                       for m in e.members}
+            undo = sorted(i for i in on_free if nets[i][3] is not None)
+            if not undo:
+                break
+            info["triangles_reverted"] += len(undo)
+            for i in undo:
+                c, r = nets[i][3]
+                nets[i] = (c, r, nets[i][2], None)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps)
+        nets = [n[:3] for n in nets]
         faces = joined_faces(nets, topo, tick)
         free = topo.free_edges
         info["free_edges"] += free
