@@ -855,17 +855,22 @@ def _missing_factors(H: np.ndarray, own: list, partner: list, axis: int, max_deg
 def _curve_distance(a: np.ndarray, b: np.ndarray, rational: bool) -> float:
     """A certified bound of max_t |a(t) - b(t)| for two Bezier curves of any degrees (homogeneous
     when ``rational``): the convex hull of their difference at the higher of the two degrees; for
-    rational ones that of N_b W_a - N_a W_b over the smallest weights (a's and b's, by the convex
-    hull)."""
+    rational ones that of N_b W_a - N_a W_b over the smallest coefficient of W_a W_b. Each is taken
+    on the polynomial elevated by its own degree, where control points lie closer to the values
+    (a rounded degree-3 curve against its reduction: 1.9e-10 on the net, 4.8e-11 elevated, 6.8e-12
+    sampled)."""
     if not rational:
         k = max(len(a), len(b)) - 1
         up = lambda c: elevate_curve(c, k - (len(c) - 1))  # noqa: E731
-        return float(np.linalg.norm(up(a) - up(b), axis=1).max())
-    wmin = float(a[:, 3].min()) * float(b[:, 3].min())
-    if wmin <= 0.0:
-        return float("inf")
+        diff = up(a) - up(b)
+        return float(np.linalg.norm(elevate_curve(diff, max(k, 1)), axis=1).max())
     num = product(b[:, :3], a[:, 3]) - product(a[:, :3], b[:, 3])
-    return float(np.linalg.norm(num, axis=1).max()) / wmin
+    den = product(a[:, 3:], b[:, 3:])
+    d = max(len(num) - 1, 1)
+    low = float(elevate_curve(den, d).min())
+    if low <= 0.0:
+        return float("inf")
+    return float(np.linalg.norm(elevate_curve(num, d), axis=1).max()) / low
 
 
 def _homog(K: np.ndarray) -> np.ndarray:
