@@ -77,8 +77,12 @@ def _inspect(path: str, tol: Tolerances, want_array_gaps: bool = True,
     clock.lap("sample")
     model = build_model(shape, read, diag, sewing, str(path), tol)
     clock.lap("arrays")
-    gaps = edge_gaps(model, tracks if tracks is not None else model_tracks(model, tol))
-    array_gaps = edge_gaps(model, model_tracks(model, tol, params)) if want_array_gaps else []
+    if tracks is None:  # measured on the arrays: the same samples serve both
+        gaps = edge_gaps(model, model_tracks(model, tol))
+        array_gaps = gaps if want_array_gaps else []
+    else:
+        gaps = edge_gaps(model, tracks)
+        array_gaps = edge_gaps(model, model_tracks(model, tol, params)) if want_array_gaps else []
     clock.lap("measure")
     if sewing is not None:
         # the input as read (faces apart): each face's own C vs S(pc), what other tools measure

@@ -85,7 +85,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
         faces.append((deviation, allowed, fs, bound))
     i4_fail = [f for f, (d, a, _, _) in zip(result.faces, faces, strict=True) if d > a]
     problems = [p for _, _, fs, _ in faces for p in fs.problems]
-    degrees = [max(c.shape[0], c.shape[1]) - 1 for face in nets for c, _, _ in face]
+    degrees = joined["degrees"]  # of the faces built: remade, reverted or as stage 2 left them
     vol_kernel = volume(ins.shape, adaptive=True) if model.solids else None
     vol_out = volume(shape) if joined["solids"] else None
 

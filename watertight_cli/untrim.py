@@ -1308,9 +1308,12 @@ def _join_t_sides(face: Face, model: Model, pieces: list[_Piece], g: _FaceGeomet
     is checked on samples. Other faces, and sides that fail the check, are left as they are."""
     if len(face.loops) != 1 or len(pieces) < 5:
         return pieces
-    lines = [_boundary_line(p, face, g) for p in pieces]
-    if any(x is None for x in lines):
-        return pieces
+    lines = []
+    for p in pieces:  # most faces have a piece off the domain's sides: stop at the first
+        line = _boundary_line(p, face, g)
+        if line is None:
+            return pieces
+        lines.append(line)
     # the loop's pieces in order; rotate so that a run on one side does not wrap around the start
     k0 = next((k for k in range(len(pieces)) if lines[k] != lines[k - 1]), None)
     if k0 is None:

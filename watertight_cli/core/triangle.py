@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bernstein import basis
-from .bezier import curve_split, elevate_curve
+from .bezier import curve_split, elevate_curve, rational_surface_eval
 
 #: samples per degree in each direction of the fit and of the check (the check's grid is offset,
 #: so no check point is a fit point)
@@ -75,12 +75,6 @@ def _homogeneous(ctrl: np.ndarray, rational: bool) -> np.ndarray:
     if rational:
         return np.asarray(ctrl, dtype=float)
     return np.concatenate([ctrl, np.ones(ctrl.shape[:2] + (1,))], axis=-1)
-
-
-def _eval_points(H: np.ndarray, s: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Cartesian points of the homogeneous net H at the pairs (s[k], t[k])."""
-    h = _pairs(basis(H.shape[0] - 1, s), H, basis(H.shape[1] - 1, t))
-    return h[:, :3] / h[:, 3:4]
 
 
 def _pairs(bs: np.ndarray, H: np.ndarray, bt: np.ndarray) -> np.ndarray:
@@ -165,7 +159,7 @@ def _fit(P: np.ndarray, n: int, budget: float = 0.0) -> tuple[np.ndarray, float]
     g = np.linspace(0.0, 1.0, _FIT_PER_DEGREE * n + 1)
     sg, tg = np.meshgrid(g, g, indexing="ij")
     sg, tg = sg.ravel(), tg.ravel()
-    target = _eval_points(P, *domain_map(sg, tg))
+    target = rational_surface_eval(P, *domain_map(sg, tg))
     bs, bt = basis(n, sg), basis(n, tg)
     B = (bs[:, :, None] * bt[:, None, :]).reshape(len(sg), -1)  # (k, (n+1)^2)
     W = B @ Q[..., 3].ravel()
@@ -207,7 +201,7 @@ def _two_sided(P: np.ndarray, Q: np.ndarray, k: int) -> float:
     sc, tc = np.meshgrid(c, c, indexing="ij")
     sc, tc = sc.ravel(), tc.ravel()
     ms, mt = domain_map(sc, tc)
-    on_q, on_p = _eval_points(Q, sc, tc), _eval_points(P, ms, mt)
+    on_q, on_p = rational_surface_eval(Q, sc, tc), rational_surface_eval(P, ms, mt)
     return max(float(_foot(P, on_q, ms, mt)[2].max()), float(_foot(Q, on_p, sc, tc)[2].max()))
 
 

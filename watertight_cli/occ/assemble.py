@@ -85,7 +85,8 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     ``fold`` (model units) from their boundary curve; thin two-sided patches with three corners
     at one point are made again as ruled lenses (``topology.lens``) within the same distance.
     Returns the compound and counts (free edges left, shells, solids, T-vertices, largest edge
-    deviation, patches dropped, lenses, and the largest distance of a fold or lens).
+    deviation, patches dropped, lenses, and the largest distance of a fold or lens), and the
+    degree (the larger of the two) of every face built.
 
     ``fallbacks``, per group, maps a patch's index in the group to the net it was made from
     (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
@@ -99,7 +100,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     builder.MakeCompound(out)
     info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0, "t_vertices": 0,
             "edge_deviation_max": 0.0, "flat_patches": 0, "folds": 0, "lenses": 0, "fold_width_max": 0.0,
-            "triangles_reverted": 0}
+            "triangles_reverted": 0, "degrees": []}
     for g, (nets, solid) in enumerate(groups):
         if not nets:
             continue
@@ -144,6 +145,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
                 nets[i] = (c, r, nets[i][2], None)
             topo = connect([(c, r) for c, r, _, _ in nets], eps)
         nets = [n[:3] for n in nets]
+        info["degrees"] += [max(c.shape[0], c.shape[1]) - 1 for c, _, _ in nets]
         faces = joined_faces(nets, topo, tick)
         free = topo.free_edges
         info["free_edges"] += free
