@@ -70,6 +70,9 @@ RUNG_SLIDE = 0.1
 #: would have to bend the long rung through it: a polynomial within degree 25 that moves one
 #: point a hair from an end bulges more than twice that move (``substitute._bump``, at 0.0095)
 _NEAR_END = 0.02
+#: how far (x ``ueps_lines``, in u) a piece end may lie from a knot line and still be put on it
+#: when it is within a sliver of it in 3D where it is (``_ends_onto_knots``)
+_KNOT_SNAP = 4.0
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
@@ -469,6 +472,33 @@ def _cluster(values: list[float], exact: set[float], eps: float) -> np.ndarray:
     return np.array(out)
 
 
+def _ends_onto_knots(ends_uv: np.ndarray, knots: list[float], face: Face, g: _FaceGeometry) -> list[float]:
+    """The u of each piece end, or of the knot line next to it where the end lies within a sliver
+    of that line in 3D, at its own v, and within ``_KNOT_SNAP`` x ``ueps_lines`` of it in u.
+
+    ``ueps_lines`` measures u by the surface's largest speed, so it misses an end a hair off a
+    knot line where the surface is slower: an edge plan cut that stands for a knot crossing of
+    the face (the edge's own knot, which the input's pcurve places 9.3e-9 off in parameter) lands
+    1e-8 off the knot line at its end, 5.6e-7 away there, while the two lines stand 9.9e-7 apart
+    at the face's far side; as two slab lines they made a sliver cell (filleted_freeform's face
+    0: four cells, 46 long and 1e-6 wide), which no tessellation resolves and which a second
+    conversion cannot join. Snapped, the end moves by at most a sliver, as ``ueps_lines`` allows."""
+    u = ends_uv[:, 0].astype(float)
+    if not knots or g.sliver <= 0 or not len(u):
+        return [float(x) for x in u]
+    ks = np.asarray(knots, dtype=float)
+    c = ks[np.abs(u[:, None] - ks[None, :]).argmin(axis=1)]
+    off = np.abs(u - c)
+    cand = np.flatnonzero((off > 0) & (off <= _KNOT_SNAP * g.ueps_lines))
+    if len(cand):
+        v = ends_uv[cand, 1]
+        pa = face.surface.evaluate(np.column_stack([u[cand], v]))
+        pb = face.surface.evaluate(np.column_stack([c[cand], v]))
+        close = cand[np.linalg.norm(pa - pb, axis=1) <= g.sliver]
+        u[close] = c[close]
+    return [float(x) for x in u]
+
+
 def _merge_thin(lines: np.ndarray, exact: set[float], face: Face, g: _FaceGeometry) -> np.ndarray:
     """Merge consecutive slab lines that stand less than a sliver apart in 3D all along the face's
     v-range. ``ueps_lines`` merges by the surface's largest speed; where the surface is much slower
@@ -506,12 +536,10 @@ def _as_side(p: _Piece, veps: float) -> Side:
 def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, rung_cuts: str = "plan"):
     """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc)."""
     ub, vb, ueps, veps = g.ub, g.vb, g.ueps_lines, g.veps
-    ends = []
-    for p in pieces:
-        ends.append(p.H[0, 0] / p.H[0, 2])
-        ends.append(p.H[-1, 0] / p.H[-1, 2])
-    lo, hi = min(ends), max(ends)
+    ends_uv = np.array([p.H[k, :2] / p.H[k, 2] for p in pieces for k in (0, -1)])
+    lo, hi = float(ends_uv[:, 0].min()), float(ends_uv[:, 0].max())
     inner_u = [float(x) for x in ub[1:-1] if lo + ueps < x < hi - ueps]
+    ends = _ends_onto_knots(ends_uv, inner_u, face, g)
     lines = _cluster(ends + inner_u, set(inner_u), ueps)
     lines = _merge_thin(lines, set(inner_u), face, g)
     slabs: list[list[_Piece]] = [[] for _ in range(len(lines) - 1)]
