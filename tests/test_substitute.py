@@ -798,6 +798,35 @@ def test_an_elevated_edge_curve_comes_back_to_its_rows_degree(k, up, rational, s
     assert curves.spans(0)[1][0].shape == real.shape
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 8), st.integers(0, 10_000))
+def test_a_polynomial_curve_written_with_a_rational_patchs_weights_comes_back(k, w_deg, seed):
+    """A rational patch that took a polynomial curve K keeps its weights W: its side is K W over
+    W, and this tool writes that side as the edge's curve. Converted again, the polynomial row
+    of degree k that holds the whole span is the edge's curve (it took the rational curve and
+    was made rational at degree k + w: filleted_freeform's second pass moved a patch 1.6e-4)."""
+    from watertight_cli.core.bernstein import product
+    from watertight_cli.core.bezier import curve_eval, rational_curve_eval
+
+    rng = np.random.default_rng(seed)
+    K = rng.uniform(-50.0, 50.0, size=(k + 1, 3))
+    W = rng.uniform(0.5, 2.0, size=w_deg + 1)
+    side = _rounded(np.concatenate([product(K, W), product(np.ones((k + 1, 1)), W)], axis=1))
+    limit = 1e-12 * 173.0
+    curves = _curves_with(side.copy(), True)
+    moved = curves.lower(0, [(0.0, 1.0, K, 1.0), (0.0, 1.0, side, 1.0)], limit)
+    low = curves.spans(0)[1][0]
+    assert low.shape == (k + 1, 4) and np.all(low[:, 3] == 1.0) and 0.0 <= moved <= limit
+    s = np.linspace(0.0, 1.0, 65)
+    assert np.linalg.norm(rational_curve_eval(low, s) - curve_eval(K, s), axis=1).max() <= limit
+    # a rational side that is not K: kept as it is
+    off = side.copy()
+    off[len(off) // 2, :3] += 1e-3 * off[len(off) // 2, 3]
+    curves = _curves_with(off, True)
+    curves.lower(0, [(0.0, 1.0, K, 1.0)], limit)
+    assert curves.spans(0)[1][0].shape == off.shape
+
+
 def test_a_rational_curve_a_hair_off_its_vertices_keeps_its_degree():
     """End moves within the limit are made by the end poles: the curve keeps its degree, ends on
     the vertices exactly, and no point moves by more than the move (the affine correction raised

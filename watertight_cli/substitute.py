@@ -272,7 +272,11 @@ class _Curves:
                 continue
             cols = sp[j].shape[1]
             best = None
-            for c in sorted((r for lo, hi, r in inside if r.shape[1] == cols and r.shape[0] - 1 < d
+            # a polynomial row may hold a rational span: a rational patch that took a polynomial
+            # curve keeps its own weights, N = K W, and its side, written as the edge's curve,
+            # is that curve times W (filleted_freeform's output: a degree-5 side written at 23)
+            for c in sorted((r if r.shape[1] == cols else _homog(r) for lo, hi, r in inside
+                             if r.shape[1] <= cols and r.shape[0] - 1 < d
                              and lo <= x0 + eps and hi >= x1 - eps), key=len):
                 bound = _curve_distance(sp[j], c, rational)
                 if bound <= limit:
