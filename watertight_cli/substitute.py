@@ -821,12 +821,30 @@ def _common_weights(H: np.ndarray, rows: dict[str, np.ndarray], max_degree: int,
     factors, so ``_put`` divides them exactly. Left as it is past ``max_degree`` (``_put`` then
     matches corner weights and the caller refits). The factors used go into ``added``."""
     for axis, names in ((0, ("bottom", "top")), (1, ("left", "right"))):
-        factors = [rows[n][:, 3] for n in names
-                   if n in rows and not _divisible(_row(H, n)[:, 3], rows[n][:, 3])]
+        needing = [n for n in names if n in rows and not _divisible(_row(H, n)[:, 3], rows[n][:, 3])]
+        factors = [rows[n][:, 3] for n in needing]
+        if factors and all(np.all(f == f[0]) for f in factors):
+            H = _elevated_to_divide(H, axis, {n: rows[n] for n in needing}, max_degree)
+            continue
         if not factors or H.shape[axis] - 1 + sum(len(f) - 1 for f in factors) > max_degree:
             continue
         for f in factors:
             H = _times(H, axis, f / f[0], added)
+    return H
+
+
+def _elevated_to_divide(H: np.ndarray, axis: int, rows: dict[str, np.ndarray], max_degree: int) -> np.ndarray:
+    """H elevated along ``axis`` by the fewest degrees (within ``max_degree``) at which each row's
+    weights omega hold a polynomial K (kappa = 1 at K's degree k): omega times 1 at degree k must
+    reach k + omega's own degree. Multiplying by kappa = 1 at degree k elevates by all of k, which
+    went past the budget where a few degrees do (filleted_freeform: rows of degree 14 with weights
+    of degree 7 taking a degree-14 K need 21, not 28; matched by a Moebius change instead, their
+    sides slid 6.9e-5 along the edge, which a second conversion took as a move). Left as it is
+    when no degree within the budget does."""
+    for m in range(1, max_degree - (H.shape[axis] - 1) + 1):
+        up = elevate_surface(H, m, 0) if axis == 0 else elevate_surface(H, 0, m)
+        if all(_divisible(_row(up, n)[:, 3], K[:, 3]) for n, K in rows.items()):
+            return up
     return H
 
 
@@ -1054,7 +1072,12 @@ def _apply(p: Patch, rows: dict[str, np.ndarray], corners: dict, curves: _Curves
     """Substitute the rows and the moved corners of one patch, elevating it where needed.
 
     A polynomial patch that takes a rational K is first written as the same surface with K's weight
-    function (its homogeneous net times kappa(s), exact), so its row takes K with equal weights."""
+    function (its homogeneous net times kappa(s), exact), so its row takes K with equal weights.
+    A K whose weights are all equal is polynomial (``_Curves.lower`` gives a rational edge the
+    polynomial row that holds it): taken as rational, it made its polynomial patch rational and
+    raised it by K's degree."""
+    rows = {k: (K[:, :3] / K[:, 3:] if K.shape[1] == 4 and np.all(K[:, 3] == K[0, 3]) else K)
+            for k, K in rows.items()}
     was_rational = p.rational
     rational = p.rational or any(K.shape[1] == 4 for K in rows.values())
     H = p.ctrl
