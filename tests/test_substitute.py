@@ -153,6 +153,9 @@ def test_fixture_converts_with_invariants(tmp_path, name):
     pytest.param("plate_with_holes.step", marks=pytest.mark.slow),
     pytest.param("bspline_boolean.step", marks=pytest.mark.slow),
     "sphere.step",  # its pole octants remade as quads
+    # 1e-6 wide slivers at knot lines (16 free edges on the second pass), a polynomial side
+    # written at a rational neighbour's degree (1.6e-4), rational sides slid along their edge
+    pytest.param("filleted_freeform.step", marks=pytest.mark.slow),
 ])
 def test_converting_twice_changes_nothing(tmp_path, name):
     """Idempotence: an output converted again has the same faces at the same degrees, and its
@@ -815,10 +818,10 @@ def test_a_polynomial_curve_written_with_a_rational_patchs_weights_comes_back(k,
     limit = 1e-12 * 173.0
     curves = _curves_with(side.copy(), True)
     moved = curves.lower(0, [(0.0, 1.0, K, 1.0), (0.0, 1.0, side, 1.0)], limit)
-    low = curves.spans(0)[1][0]
-    assert low.shape == (k + 1, 4) and np.all(low[:, 3] == 1.0) and 0.0 <= moved <= limit
+    _, spans, rational = curves.spans(0)
+    assert not rational and spans[0].shape == (k + 1, 3) and 0.0 <= moved <= limit  # K, polynomial
     s = np.linspace(0.0, 1.0, 65)
-    assert np.linalg.norm(rational_curve_eval(low, s) - curve_eval(K, s), axis=1).max() <= limit
+    assert np.linalg.norm(curve_eval(spans[0], s) - rational_curve_eval(side, s), axis=1).max() <= limit
     # a rational side that is not K: kept as it is
     off = side.copy()
     off[len(off) // 2, :3] += 1e-3 * off[len(off) // 2, 3]

@@ -71,6 +71,10 @@ _POLY_REL = 0.01  # share of the tolerance a polynomial K may differ from a rati
 #: a move below I2's goal is no change that any check here can see. The same share bounds the end
 #: moves that a rational curve makes by its end poles instead of its affine correction (``exact``)
 _LOWER_REL = 1.0
+#: a reduction in ``_Curves.lower`` stops where its bound grows past this x the first one (or
+#: past this x ``_LOWER_FLOOR`` x the limit): there the curve's true degree is passed
+_LOWER_JUMP = 10.0
+_LOWER_FLOOR = 1e-3
 _BEND_REL = 1e-13  # T-vertices this close to the long side (x diagonal) need no bend (``_through``)
 _RUNG_FIT_REL = 0.1  # a rung's fit of K at its own parameter: within this x watertight_rel x diagonal
 _BUMP_PEAK = 1.1  # a long side bent through its T-vertices moves elsewhere by at most this x their move
@@ -261,43 +265,62 @@ class _Curves:
         long and 50 from the origin), or for a rational patch that took a curve's weight function
         the curve times a common polynomial factor, which no reduction finds. Taken as it is, it
         would raise every lower-degree patch on the edge to that degree when the output is
-        converted again. Returns the largest bound of a change made (0.0 when none)."""
+        converted again. A rational span that a polynomial row holds becomes that row, at its own
+        true degree; an edge whose spans all have equal weights then is polynomial. Returns the
+        largest bound of a change made (0.0 when none)."""
         br, sp, rational = self.spans(e)
         worst = 0.0
         for j, (x0, x1) in enumerate(zip(br[:-1], br[1:], strict=True)):
             eps = 1e-9 * (x1 - x0)
             inside = [(lo, hi, r) for lo, hi, r, _ in uses if lo >= x0 - eps and hi <= x1 + eps]
-            d = sp[j].shape[0] - 1
-            if not inside or min(r.shape[0] - 1 for *_, r in inside) >= d:
+            if not inside:
                 continue
+            whole = [r for lo, hi, r in inside if lo <= x0 + eps and hi >= x1 - eps]
+            d = sp[j].shape[0] - 1
             cols = sp[j].shape[1]
-            best = None
-            # a polynomial row may hold a rational span: a rational patch that took a polynomial
-            # curve keeps its own weights, N = K W, and its side, written as the edge's curve,
-            # is that curve times W (filleted_freeform's output: a degree-5 side written at 23)
-            for c in sorted((r if r.shape[1] == cols else _homog(r) for lo, hi, r in inside
-                             if r.shape[1] <= cols and r.shape[0] - 1 < d
-                             and lo <= x0 + eps and hi >= x1 - eps), key=len):
+            low = max(min(r.shape[0] - 1 for *_, r in inside), 1)
+            # a polynomial row may hold a rational span, at any degree: a rational patch that took
+            # a polynomial curve K keeps its own weights W, N = K W, and its side, written as the
+            # edge's curve, is K W over W (filleted_freeform's output: a degree-5 side written at 23)
+            held = None
+            if cols == 4:
+                for c in sorted((r for r in whole if r.shape[1] == 3), key=len):
+                    bound = _curve_distance(sp[j], _homog(c), True)
+                    if bound <= limit:
+                        held = (_homog(np.array(c, dtype=float)), bound)
+                        break
+            if held is None and low >= d:
+                continue
+            base = held[0] if held is not None else sp[j]
+            best = held
+            for c in sorted((r for r in whole if r.shape[1] == cols and r.shape[0] - 1 < base.shape[0] - 1),
+                            key=len):
                 bound = _curve_distance(sp[j], c, rational)
                 if bound <= limit:
                     best = (np.array(c, dtype=float), bound)
                     break
-            # reductions from the rows' lowest degree down while they stay within the limit: a
-            # rational row with weights of true degree w takes a polynomial curve of degree k
-            # without a raise only when k + w is at most its degree (``_common_weights``), so the
-            # curve goes to its own true degree (filleted_freeform: a degree-9 row with linear
-            # weights holding a degree-8 curve written at degree 25)
-            r = max(min(c.shape[0] - 1 for *_, c in inside), 1)
+            # reductions from the rows' lowest degree down to the span's true degree: a rational
+            # row with weights of true degree w takes a polynomial curve of degree k without a raise
+            # only when k + w is at most its degree (``_common_weights``), so the curve goes to its
+            # own true degree (filleted_freeform: a degree-9 row with linear weights holding a
+            # degree-8 curve written at degree 25). Past the true degree the bound stops being the
+            # rounding's and grows (a degree-10 curve written at 25: 1.1e-13 at 10, 1.3e-12 at 9,
+            # 3.1e-11 at 8); a reduction there moved the curve on every conversion
+            r = min(low, base.shape[0] - 1)
+            ref = None
             while r >= 1 and (best is None or r < best[0].shape[0] - 1):
-                red = reduce_curve(sp[j], r, fix_ends=1)[0]
+                red = reduce_curve(base, r, fix_ends=1)[0]
                 bound = _curve_distance(sp[j], red, rational)
-                if bound > limit:
+                ref = max(bound, _LOWER_FLOOR * limit) if ref is None else ref
+                if bound > limit or bound > _LOWER_JUMP * ref:
                     break
                 best = (red, bound)
                 r -= 1
             if best is not None:
                 sp[j] = best[0]
                 worst = max(worst, best[1])
+        if rational and all(np.all(x[:, 3] == x[0, 3]) for x in sp):
+            self._spans[e] = (br, [x[:, :3] / x[:, 3:] for x in sp], False)
         return worst
 
     def decide(self, e: int, uses: list[tuple[float, float, np.ndarray, float]]) -> None:
