@@ -6,7 +6,12 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from watertight_cli.core.bezier import curve_split, elevate_surface, rational_surface_eval_grid, surface_eval_grid
+from watertight_cli.core.bezier import (
+    curve_split,
+    elevate_surface,
+    rational_surface_eval_grid,
+    surface_eval_grid,
+)
 from watertight_cli.core.triangle import collapsed_side, domain_map, quad_from_triangle
 
 EPS = 1e-12

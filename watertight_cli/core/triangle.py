@@ -156,7 +156,8 @@ def quad_from_triangle(ctrl: np.ndarray, rational: bool, eps: float, budget: flo
     return None
 
 
-def _fit(P: np.ndarray, n: int, budget: float = 0.0, project: bool = False) -> tuple[np.ndarray, float] | None:
+def _fit(P: np.ndarray, n: int, budget: float = 0.0,
+         project: bool = False) -> tuple[np.ndarray, float] | None:
     """Q of degree (n, n) fitted to P, and its sampled two-sided deviation (that of the coarse
     check alone when it exceeds ``budget``); None when the weights or the fit fail.
 
