@@ -243,11 +243,16 @@ def _point_derivatives(H: np.ndarray, s: np.ndarray, t: np.ndarray):
 def _foot(H: np.ndarray, pts: np.ndarray, s: np.ndarray, t: np.ndarray, iters: int = 6):
     """Foot points of the points on the patch H, (s, t, distance): damped Gauss-Newton from the
     given start, kept in [0, 1]^2 (a foot on the patch's boundary is a local minimum there, which
-    the clipped step finds)."""
-    s, t = s.copy(), t.copy()
+    the clipped step finds). A point whose last step moved neither parameter by more than 1e-13
+    is done; the others go on (most are done after two or three steps)."""
+    s, t = s.astype(float), t.astype(float)
+    live = np.arange(len(s))
     for _ in range(iters):
-        x, xs, xt = _point_derivatives(H, s, t)
-        r = x - pts
+        if not len(live):
+            break
+        sl, tl = s[live], t[live]
+        x, xs, xt = _point_derivatives(H, sl, tl)
+        r = x - pts[live]
         a, b, c = (xs * xs).sum(1), (xs * xt).sum(1), (xt * xt).sum(1)
         f, g = (xs * r).sum(1), (xt * r).sum(1)
         lam = 1e-12 * (a + c) + 1e-300
@@ -255,14 +260,14 @@ def _foot(H: np.ndarray, pts: np.ndarray, s: np.ndarray, t: np.ndarray, iters: i
         det = a * c - b * b
         ok = det > 0
         det = np.where(ok, det, 1.0)
-        s1 = np.clip(s - np.where(ok, (c * f - b * g) / det, 0.0), 0.0, 1.0)
-        t1 = np.clip(t - np.where(ok, (a * g - b * f) / det, 0.0), 0.0, 1.0)
-        step = max(float(np.abs(s1 - s).max(initial=0.0)), float(np.abs(t1 - t).max(initial=0.0)))
-        s, t = s1, t1
-        if step <= 1e-13:  # converged everywhere: the last step moved no parameter
-            break
-    x, _, _ = _point_derivatives(H, s, t)
-    return s, t, np.linalg.norm(x - pts, axis=1)
+        s1 = np.clip(sl - np.where(ok, (c * f - b * g) / det, 0.0), 0.0, 1.0)
+        t1 = np.clip(tl - np.where(ok, (a * g - b * f) / det, 0.0), 0.0, 1.0)
+        step = np.maximum(np.abs(s1 - sl), np.abs(t1 - tl))
+        s[live], t[live] = s1, t1
+        live = live[step > 1e-13]
+    m, n = H.shape[0] - 1, H.shape[1] - 1
+    h = _pairs(basis(m, s), H, basis(n, t))
+    return s, t, np.linalg.norm(h[:, :3] / h[:, 3:4] - pts, axis=1)
 
 
 def _blown_up(Q: np.ndarray) -> bool:
