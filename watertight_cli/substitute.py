@@ -293,8 +293,9 @@ class _Curves:
                 continue
             base = held[0] if held is not None else sp[j]
             best = held
-            for c in sorted((r for r in whole if r.shape[1] == cols and r.shape[0] - 1 < base.shape[0] - 1),
-                            key=len):
+            # (a held span keeps its polynomial row: the lowest-degree one within the limit)
+            for c in sorted((r for r in whole if held is None and r.shape[1] == cols
+                             and r.shape[0] - 1 < d), key=len):
                 bound = _curve_distance(sp[j], c, rational)
                 if bound <= limit:
                     best = (np.array(c, dtype=float), bound)
@@ -309,7 +310,9 @@ class _Curves:
             r = min(low, base.shape[0] - 1)
             ref = None
             while r >= 1 and (best is None or r < best[0].shape[0] - 1):
-                red = reduce_curve(base, r, fix_ends=1)[0]
+                # a held row is reduced as the polynomial it is, its weights kept exactly 1
+                red = (_homog(reduce_curve(base[:, :3], r, fix_ends=1)[0]) if held is not None
+                       else reduce_curve(base, r, fix_ends=1)[0])
                 bound = _curve_distance(sp[j], red, rational)
                 ref = max(bound, _LOWER_FLOOR * limit) if ref is None else ref
                 if bound > limit or bound > _LOWER_JUMP * ref:
