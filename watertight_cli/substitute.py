@@ -867,10 +867,12 @@ def _elevated_to_divide(H: np.ndarray, axis: int, rows: dict[str, np.ndarray], m
     of degree 7 taking a degree-14 K need 21, not 28; matched by a Moebius change instead, their
     sides slid 6.9e-5 along the edge, which a second conversion took as a move). Left as it is
     when no degree within the budget does."""
+    # a row of the net elevated along its own axis is the row elevated: only the weights are
+    # elevated while the degree is sought, the net once it is found
+    weights = {n: _row(H, n)[:, 3:4] for n in rows}
     for m in range(1, max_degree - (H.shape[axis] - 1) + 1):
-        up = elevate_surface(H, m, 0) if axis == 0 else elevate_surface(H, 0, m)
-        if all(_divisible(_row(up, n)[:, 3], K[:, 3]) for n, K in rows.items()):
-            return up
+        if all(_divisible(elevate_curve(weights[n], m)[:, 0], K[:, 3]) for n, K in rows.items()):
+            return elevate_surface(H, m, 0) if axis == 0 else elevate_surface(H, 0, m)
     return H
 
 

@@ -178,9 +178,10 @@ def _fit(P: np.ndarray, n: int, budget: float = 0.0,
     sg, tg = np.meshgrid(g, g, indexing="ij")
     sg, tg = sg.ravel(), tg.ravel()
     ms, mt = domain_map(sg, tg)
+    blend = _coons(Q[..., :3])  # of the boundary rows (homogeneous points): a guess and a pull
     if project:
         coons = Q.copy()
-        coons[1:-1, 1:-1, :3] = _coons(Q[..., :3])[1:-1, 1:-1]
+        coons[1:-1, 1:-1, :3] = blend[1:-1, 1:-1]
         ms, mt, _ = _foot(P, rational_surface_eval(coons, sg, tg), ms, mt, iters=_PROJECT_ITERS)
     target = rational_surface_eval(P, ms, mt)
     bs, bt = basis(n, sg), basis(n, tg)
@@ -198,7 +199,7 @@ def _fit(P: np.ndarray, n: int, budget: float = 0.0,
         # the net up (a half disc at degree 22: control points 450 x the patch's size, which the
         # kernel's power-basis evaluation then misplaces by 0.01): pulled weakly towards the
         # Coons net of the boundary (in homogeneous points), the net stays the patch's size
-        ref = _coons(Q[..., :3]).reshape(-1, 3)[inner]
+        ref = blend.reshape(-1, 3)[inner]
         mu = _PULL * float(np.einsum("ij,ij->", A, A)) / A.shape[1]
         # normal equations (positive definite with the pull): a tenth of lstsq's time
         N = A.T @ A
@@ -265,9 +266,7 @@ def _foot(H: np.ndarray, pts: np.ndarray, s: np.ndarray, t: np.ndarray, iters: i
         step = np.maximum(np.abs(s1 - sl), np.abs(t1 - tl))
         s[live], t[live] = s1, t1
         live = live[step > 1e-13]
-    m, n = H.shape[0] - 1, H.shape[1] - 1
-    h = _pairs(basis(m, s), H, basis(n, t))
-    return s, t, np.linalg.norm(h[:, :3] / h[:, 3:4] - pts, axis=1)
+    return s, t, np.linalg.norm(rational_surface_eval(H, s, t) - pts, axis=1)
 
 
 def _blown_up(Q: np.ndarray) -> bool:
