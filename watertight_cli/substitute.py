@@ -1356,14 +1356,20 @@ def _displace(H: np.ndarray, moves: dict, rational: bool) -> None:
 
 def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, diagonal: float) -> None:
     """Make inner sides that two patches share bitwise equal (the lowest-degree row wins): two
-    sides are shared when they join the same two corners (see ``_unify_corners``)."""
+    sides are shared when they join the same two corners (see ``_unify_corners``). Where a side
+    on a shared curve joins those corners too (across a cell thinner than the joining tolerance,
+    which the B-rep drops as flat), that curve's row wins."""
     items = []  # (patch index, side name, start uv, end uv)
     ends = []
+    anchors: dict[tuple[int, int], tuple[int, str, tuple[int, int]]] = {}
     for i, (refs, cm) in enumerate(info):
         for name, (_, _, (c0, c1)) in SIDES.items():
+            a, b = labels[(i, c0)], labels[(i, c1)]
             if refs[name] is None:
                 items.append((i, name, cm[c0], cm[c1]))
-                ends.append((labels[(i, c0)], labels[(i, c1)]))
+                ends.append((a, b))
+            elif not refs[name].pole and a != b:
+                anchors.setdefault((min(a, b), max(a, b)), (i, name, (a, b)))
     if not items:
         return
     pts = np.array([[*a, *b] for _, _, a, b in items])
@@ -1377,7 +1383,11 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
     patches = fr.patches
     lonely = []
     partners: dict[int, list[tuple[int, bool]]] = {}  # item -> the others with its two corners
-    for ks in by_ends.values():
+    for key, ks in by_ends.items():
+        if key in anchors:
+            ks = _share_anchor(fr, items, ends, ks, anchors[key], fs, tol, diagonal)
+            if not ks:
+                continue
         owners = {items[k][0] for k in ks}
         if len(owners) < 2:
             lonely.extend(ks)  # a side with a T-vertex on it, or one of the sides that meet there
@@ -1405,7 +1415,30 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
                 continue
             _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal, src.factors)
             fs.inner_shared += 1
-    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners)
+    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners, ends)
+
+
+def _share_anchor(fr, items, ends, ks: list[int], anchor: tuple, fs: FaceSubstitution, tol: Tolerances,
+                  diagonal: float) -> list[int]:
+    """Inner sides ``ks`` that join the same two corners as a side on a shared curve (``anchor``:
+    patch, side, its corner ids) take that side's row where they run within the joining tolerance
+    of it. They lie across a flat cell that the B-rep drops, and the patch beyond it then meets
+    the neighbouring face with this side: left as it was, it stood 4.3e-8 off the edge's curve
+    (ec_turbine, I2). Returns the sides that do not (shared among themselves as usual)."""
+    ai, an, aends = anchor
+    src = fr.patches[ai]
+    rest = []
+    for k in ks:
+        i, name = items[k][0], items[k][1]
+        flip = ends[k] != aends
+        if not _same_parameter(src, an, fr.patches[i], name, flip, fr.eps, JOIN_REL * diagonal):
+            rest.append(k)
+            continue
+        row = _row(src.ctrl, an)
+        _copy_row(fr.patches[i], name, row[::-1] if flip else row, src.rational, fs, tol, diagonal,
+                  src.factors)
+        fs.inner_shared += 1
+    return rest
 
 
 def _side_uv(p: Patch, name: str, g: np.ndarray) -> np.ndarray:
@@ -1435,12 +1468,14 @@ def _same_parameter(a: Patch, an: str, b: Patch, bn: str, flip: bool, eps, eps3:
 
 
 def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubstitution, tol: Tolerances,
-                   diagonal: float, partners: dict | None = None) -> None:
+                   diagonal: float, partners: dict | None = None, ends: list | None = None) -> None:
     """Sides that meet a longer side of a neighbour at a T-vertex become subdivisions of that side,
     so the two stay on one curve (its corners at the T-vertex are computed once). The long side
     is a lonely one where there is one; else a side shared whole (``partners``: across a cell
     thinner than the joining tolerance, whose two sides were made one row), whose partners then
-    take the long side's row too when it is bent."""
+    take the long side's row too when it is bent. ``ends``: per side, the corner ids at its ends
+    (``_unify_corners``); a short side's end that is the long side's end corner is cut there,
+    not at its uv, which may lie a sliver before it."""
     partners = partners or {}
     if not lonely:
         return
@@ -1478,6 +1513,12 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
         li, lname = items[j][0], items[j][1]
         long_p = fr.patches[li]
         ua, ub = _side_param(long_p, lname, items[k][2]), _side_param(long_p, lname, items[k][3])
+        if ends is not None:
+            # an end in the long side's end corner is that end: cut at its uv, a sliver before it
+            # (a cell thinner than the merge distance, its corners one), the short side ended
+            # 1.2e-7 short of the corner it shares (ec_turbine: I1 and I2)
+            at = {ends[j][0]: 0.0, ends[j][1]: 1.0}
+            ua, ub = at.get(ends[k][0], ua), at.get(ends[k][1], ub)
         groups.setdefault(j, []).append((k, ua, ub))
         used.update((k, j))
     for j, shorts in groups.items():
