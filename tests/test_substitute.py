@@ -854,3 +854,48 @@ def test_a_rational_curve_a_hair_off_its_vertices_keeps_its_degree():
     curves.still = 1e-13  # beyond the limit: the affine correction, one degree up
     curves._pins = {}
     assert curves.exact(0, 0.0, 1.0).shape[0] == span.shape[0] + 1
+
+
+def _box_face(boxes, eps, ctrl=None, diagonal=2.0):
+    """A face S(u, v) = (u, v, uv / 2) cut into axis-aligned cells ``boxes`` (u0, u1, v0, v1): each
+    patch is S on its cell, exact as the bilinear net of its corners (or ``ctrl[i]`` where given)."""
+    from types import SimpleNamespace
+
+    from watertight_cli.untrim import FaceResult, Patch, Side
+
+    def surf(u, v):
+        return np.array([u, v, 0.5 * u * v])
+
+    fr = FaceResult(0)
+    fr.eps = eps
+    info = []
+    for i, (u0, u1, v0, v1) in enumerate(boxes):
+        net = np.array([[surf(u0, v0), surf(u0, v1)], [surf(u1, v0), surf(u1, v1)]])
+        if ctrl and i in ctrl:
+            net = ctrl[i]
+        bottom = Side(np.array([[u0, v0, 1.0], [u1, v0, 1.0]]), True)
+        top = Side(np.array([[u0, v1, 1.0], [u1, v1, 1.0]]), True)
+        fr.patches.append(Patch(0, net, False, bottom, top))
+        cm = np.array([[[u0, v0], [u0, v1]], [[u1, v0], [u1, v1]]])
+        info.append(({name: None for name in S.SIDES}, cm))
+    return fr, info, SimpleNamespace(diagonal=diagonal)
+
+
+def test_a_t_side_ending_in_its_long_sides_end_corner_ends_there():
+    """Beside a long side, a cell a sliver (1e-7) below the long side's end: its corners there are
+    one corner (``_unify_corners``), but the T-side beside it was cut from the long side at its
+    own uv, a sliver before that corner, so it ended 1.2e-7 short of the corner it shares
+    (ec_turbine: the STEP reader moved two pcurve ends, I1, and the gap was 7.4e-8, I2)."""
+    d = 1e-7
+    boxes = [(0.0, 0.5, 0.0, 1.0), (0.5, 1.0, 0.0, 0.3), (0.5, 1.0, 0.3, 1.0 - d), (0.5, 1.0, 1.0 - d, 1.0),
+             (0.0, 0.5, 1.0, 2.0), (0.5, 1.0, 1.0, 2.0)]
+    fr, info, model = _box_face(boxes, (1e-7, 1e-7))
+    fs = S.FaceSubstitution(0)
+    labels = S._unify_corners(fr, info, {}, fs)
+    assert labels[(2, (0, 1))] == labels[(0, (1, 1))]  # one corner
+    S._share_inner(fr, info, labels, fs, Tolerances(), model.diagonal)
+    assert fs.inner_t == 2
+    # the T-side's end is the long side's end, bitwise, and both are that corner of every patch
+    left = fr.patches[2].ctrl[0]
+    np.testing.assert_array_equal(left[-1], fr.patches[0].ctrl[-1, -1])
+    np.testing.assert_array_equal(left[-1], fr.patches[3].ctrl[0, 0])

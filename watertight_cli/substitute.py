@@ -1359,20 +1359,14 @@ def _displace(H: np.ndarray, moves: dict, rational: bool) -> None:
 
 def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, diagonal: float) -> None:
     """Make inner sides that two patches share bitwise equal (the lowest-degree row wins): two
-    sides are shared when they join the same two corners (see ``_unify_corners``). Where a side
-    on a shared curve joins those corners too (across a cell thinner than the joining tolerance,
-    which the B-rep drops as flat), that curve's row wins."""
+    sides are shared when they join the same two corners (see ``_unify_corners``)."""
     items = []  # (patch index, side name, start uv, end uv)
     ends = []
-    anchors: dict[tuple[int, int], tuple[int, str, tuple[int, int]]] = {}
     for i, (refs, cm) in enumerate(info):
         for name, (_, _, (c0, c1)) in SIDES.items():
-            a, b = labels[(i, c0)], labels[(i, c1)]
             if refs[name] is None:
                 items.append((i, name, cm[c0], cm[c1]))
-                ends.append((a, b))
-            elif not refs[name].pole and a != b:
-                anchors.setdefault((min(a, b), max(a, b)), (i, name, (a, b)))
+                ends.append((labels[(i, c0)], labels[(i, c1)]))
     if not items:
         return
     pts = np.array([[*a, *b] for _, _, a, b in items])
@@ -1386,11 +1380,7 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
     patches = fr.patches
     lonely = []
     partners: dict[int, list[tuple[int, bool]]] = {}  # item -> the others with its two corners
-    for key, ks in by_ends.items():
-        if key in anchors:
-            ks = _share_anchor(fr, items, ends, ks, anchors[key], fs, tol, diagonal)
-            if not ks:
-                continue
+    for ks in by_ends.values():
         owners = {items[k][0] for k in ks}
         if len(owners) < 2:
             lonely.extend(ks)  # a side with a T-vertex on it, or one of the sides that meet there
@@ -1419,29 +1409,6 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
             _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal, src.factors)
             fs.inner_shared += 1
     _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners, ends)
-
-
-def _share_anchor(fr, items, ends, ks: list[int], anchor: tuple, fs: FaceSubstitution, tol: Tolerances,
-                  diagonal: float) -> list[int]:
-    """Inner sides ``ks`` that join the same two corners as a side on a shared curve (``anchor``:
-    patch, side, its corner ids) take that side's row where they run within the joining tolerance
-    of it. They lie across a flat cell that the B-rep drops, and the patch beyond it then meets
-    the neighbouring face with this side: left as it was, it stood 4.3e-8 off the edge's curve
-    (ec_turbine, I2). Returns the sides that do not (shared among themselves as usual)."""
-    ai, an, aends = anchor
-    src = fr.patches[ai]
-    rest = []
-    for k in ks:
-        i, name = items[k][0], items[k][1]
-        flip = ends[k] != aends
-        if not _same_parameter(src, an, fr.patches[i], name, flip, fr.eps, JOIN_REL * diagonal):
-            rest.append(k)
-            continue
-        row = _row(src.ctrl, an)
-        _copy_row(fr.patches[i], name, row[::-1] if flip else row, src.rational, fs, tol, diagonal,
-                  src.factors)
-        fs.inner_shared += 1
-    return rest
 
 
 def _side_uv(p: Patch, name: str, g: np.ndarray) -> np.ndarray:
