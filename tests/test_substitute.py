@@ -856,9 +856,9 @@ def test_a_rational_curve_a_hair_off_its_vertices_keeps_its_degree():
     assert curves.exact(0, 0.0, 1.0).shape[0] == span.shape[0] + 1
 
 
-def _box_face(boxes, eps, ctrl=None, diagonal=2.0):
+def _box_face(boxes, eps, diagonal=2.0):
     """A face S(u, v) = (u, v, uv / 2) cut into axis-aligned cells ``boxes`` (u0, u1, v0, v1): each
-    patch is S on its cell, exact as the bilinear net of its corners (or ``ctrl[i]`` where given)."""
+    patch is S on its cell, exact as the bilinear net of its corners."""
     from types import SimpleNamespace
 
     from watertight_cli.untrim import FaceResult, Patch, Side
@@ -869,10 +869,8 @@ def _box_face(boxes, eps, ctrl=None, diagonal=2.0):
     fr = FaceResult(0)
     fr.eps = eps
     info = []
-    for i, (u0, u1, v0, v1) in enumerate(boxes):
+    for u0, u1, v0, v1 in boxes:
         net = np.array([[surf(u0, v0), surf(u0, v1)], [surf(u1, v0), surf(u1, v1)]])
-        if ctrl and i in ctrl:
-            net = ctrl[i]
         bottom = Side(np.array([[u0, v0, 1.0], [u1, v0, 1.0]]), True)
         top = Side(np.array([[u0, v1, 1.0], [u1, v1, 1.0]]), True)
         fr.patches.append(Patch(0, net, False, bottom, top))
