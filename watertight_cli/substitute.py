@@ -1438,7 +1438,7 @@ def _same_parameter(a: Patch, an: str, b: Patch, bn: str, flip: bool, eps, eps3:
 
 
 def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubstitution, tol: Tolerances,
-                   diagonal: float, partners: dict | None = None, ends: list | None = None) -> None:
+                   diagonal: float, partners: dict, ends: list) -> None:
     """Sides that meet a longer side of a neighbour at a T-vertex become subdivisions of that side,
     so the two stay on one curve (its corners at the T-vertex are computed once). The long side
     is a lonely one where there is one; else a side shared whole (``partners``: across a cell
@@ -1446,7 +1446,6 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
     take the long side's row too when it is bent. ``ends``: per side, the corner ids at its ends
     (``_unify_corners``); a short side's end that is the long side's end corner is cut there,
     not at its uv, which may lie a sliver before it."""
-    partners = partners or {}
     if not lonely:
         return
     # shorts: the lonely sides; containers: lonely ones first, else sides shared whole (across a
@@ -1483,12 +1482,11 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
         li, lname = items[j][0], items[j][1]
         long_p = fr.patches[li]
         ua, ub = _side_param(long_p, lname, items[k][2]), _side_param(long_p, lname, items[k][3])
-        if ends is not None:
-            # an end in the long side's end corner is that end: cut at its uv, a sliver before it
-            # (a cell thinner than the merge distance, its corners one), the short side ended
-            # 1.2e-7 short of the corner it shares (ec_turbine: I1 and I2)
-            at = {ends[j][0]: 0.0, ends[j][1]: 1.0}
-            ua, ub = at.get(ends[k][0], ua), at.get(ends[k][1], ub)
+        # an end in the long side's end corner is that end: cut at its uv, a sliver before it
+        # (a cell thinner than the merge distance, its corners one), the short side ended 1.2e-7
+        # short of the corner it shares (ec_turbine: I1, and a 7.4e-8 gap there)
+        at = {ends[j][0]: 0.0, ends[j][1]: 1.0}
+        ua, ub = at.get(ends[k][0], ua), at.get(ends[k][1], ub)
         groups.setdefault(j, []).append((k, ua, ub))
         used.update((k, j))
     for j, shorts in groups.items():
