@@ -123,9 +123,9 @@ def test_boundary_sides_lie_on_the_shared_curve(name):
 
 
 @pytest.mark.parametrize("name", ["loft_minus_cylinder.step", "sphere_cut_box.step", "two_solids.step",
-                                  "sphere.step", "torus.step", "bspline_boolean.step", "open_sheet.step",
-                                  "loft_minus_cylinder.igs", "open_sheet_144.igs", "plate_with_holes.step",
-                                  "slow_pcurve_box.step", "filleted_freeform.step"])
+                                  "assembly.step", "sphere.step", "torus.step", "bspline_boolean.step",
+                                  "open_sheet.step", "loft_minus_cylinder.igs", "open_sheet_144.igs",
+                                  "plate_with_holes.step", "slow_pcurve_box.step", "filleted_freeform.step"])
 def test_fixture_converts_with_invariants(tmp_path, name):
     """The whole pipeline on a fixture: written, read back, I1-I4 and kernel validity hold."""
     from watertight_cli.convert import convert_file

@@ -113,7 +113,7 @@ def test_built_faces_are_valid_and_untrimmed(tmp_path, tol):
     from watertight_cli.occ.io import write_shape
 
     nets = [_net(0, 1, 0, 0.5, bump=0.4), _net(0, 0.3, 0.5, 1, bump=0.4), _net(0.3, 1, 0.5, 1, bump=0.4)]
-    shape, info = join([([(n, False, False) for n in nets], False)], 5.0, "test")
+    shape, info, _ = join([([(n, False, False) for n in nets], False)], 5.0, "test")
     assert is_valid(shape)
     assert info["shells"] == 1 and info["t_vertices"] == 1
     assert info["free_edges"] == 3 + 2 + 2
@@ -336,8 +336,8 @@ def test_a_remade_patch_that_leaves_a_side_free_goes_back():
     off = b.copy()
     off[0, :, 2] += 1e-3  # its left side leaves a's right side
     nets = [(a, False, False), (off, False, False)]
-    _, info = join([(nets, False)], 5.0, "test", fallbacks=[{1: (b, False)}])
+    _, info, _ = join([(nets, False)], 5.0, "test", fallbacks=[{1: (b, False)}])
     assert info["triangles_reverted"] == 1
     assert info["free_edges"] == 6  # the outer boundary only: a and b share their side
-    _, info = join([(nets, False)], 5.0, "test")
+    _, info, _ = join([(nets, False)], 5.0, "test")
     assert info["triangles_reverted"] == 0 and info["free_edges"] == 8

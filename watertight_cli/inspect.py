@@ -30,6 +30,9 @@ class Inspection:
     timings: dict[str, float] = field(default_factory=dict)
     samples: int = 0
     shape: object = None  # the prepared OCCT shape (sewn input); opaque outside watertight_cli.occ
+    # a STEP file's assemblies, parts and names (``occ.structure.Structure``; None for IGES, and
+    # where the faces were sewn, which makes new ones); opaque outside watertight_cli.occ
+    structure: object = None
 
 
 class _Clock:
@@ -91,7 +94,8 @@ def _inspect(path: str, tol: Tolerances, want_array_gaps: bool = True,
         sewing.max_join_distance = max(joined, default=0.0)
         clock.lap("measure")
     return Inspection(model=model, format=read.format, gaps=gaps, array_gaps=array_gaps,
-                      timings=clock.times, samples=tol.gap_samples, shape=shape)
+                      timings=clock.times, samples=tol.gap_samples, shape=shape,
+                      structure=read.structure if sewing is None else None)
 
 
 def trimmed(face, rel: float = 1e-9) -> bool:

@@ -44,6 +44,10 @@ def input_report(ins: Inspection) -> dict:
         "nonmanifold_edges": sum(1 for e in edges if e.uses > 2),
         "solids": m.solids,
         "shells": m.shells,
+        # a STEP file's assemblies, parts, placements and names; faces, solids and gaps above count
+        # every part once, however often the assemblies place it
+        "structure": None if ins.structure is None else {**ins.structure.counts(),
+                                                          "tree": ins.structure.describe()},
         "sewing": None if m.sewing is None else {
             "tolerance": m.sewing.tolerance,
             "free_edges_before": m.sewing.free_edges_before,
@@ -97,6 +101,11 @@ def format_table(r: dict) -> str:
         f"free {r['free_edges']}, non-manifold {r['nonmanifold_edges']}; solids {r['solids']}, "
         f"shells {r['shells']}; diagonal {r['diagonal']:.4g}",
     ]
+    st = r.get("structure")
+    if st and (st["assemblies"] or st["parts"] > 1):
+        lines.append(f"  structure: {st['assemblies']} assemblies, {st['parts']} parts placed "
+                     f"{st['instances']} times, {st['named_bodies']} named bodies (each part counted once "
+                     "above)")
     if r["sewing"]:
         s = r["sewing"]
         lines.append(f"  sewn at tolerance {s['tolerance']:.3g}: free edges {s['free_edges_before']} -> "

@@ -22,13 +22,15 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
            overwrite: bool, fast: bool, keep: dict | None = None, near: list | None = None) -> dict:
     from .occ.assemble import input_groups, is_valid, join, volume
     from .occ.io import write_shape
+    from .occ.structure import Output
     from .report import edge_gap_rows
     from .substitute import substitute
 
     model = ins.model
     times = report["timings"]
     t = time.perf_counter()
-    solid_faces = [i for faces, solid in input_groups(ins.shape) if solid for i in faces]
+    in_groups = input_groups(ins.shape)
+    solid_faces = [i for faces, solid, _ in in_groups if solid for i in faces]
     vol_in = _patch_volume(model, result, solid_faces) if model.solids else None
     tick = progress("substitute", len(model.faces)) if progress else None
     sub = substitute(model, result, tol, tick, near)
@@ -38,15 +40,15 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     tick = progress("build", len(result.patches)) if progress else None
     nets, quads = _untriangle(result, tol, model.diagonal)
     groups, fallbacks = [], []
-    for faces, solid in input_groups(ins.shape):
+    for faces, solid, _ in in_groups:
         items = [(c, r, model.faces[i].reversed, was) for i in faces for c, r, was in nets[i]]
         groups.append(([it[:3] for it in items], solid))
         fallbacks.append({k: it[3] for k, it in enumerate(items) if it[3] is not None})
     # a fold (a patch whose boundary runs along one curve and back, ``topology.folded``) is
     # dropped, and a thin lens with three corners at one point made again (``topology.lens``),
     # when it lies within half the tolerance of its boundary curve, which its neighbours share
-    shape, joined = join(groups, model.diagonal, src, tick, fold=0.5 * tol.approx_rel * model.diagonal,
-                         fallbacks=fallbacks)
+    shape, joined, made = join(groups, model.diagonal, src, tick, fold=0.5 * tol.approx_rel * model.diagonal,
+                               fallbacks=fallbacks)
     # remade triangles that left a side free went back to their triangles (``occ.assemble.join``);
     # their fit's deviation stays in their faces' I4 measure, an overestimate
     quads["remade"] -= joined["triangles_reverted"]
@@ -139,11 +141,14 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
                                   if vol_in and vol_out is not None else None),
         },
         "problems": problems,
+        "structure": _structure_report(ins.structure, dst),
     })
     invariants = {"I4": not i4_fail and not problems, "valid": valid}
     if dst is not None:
         t = time.perf_counter()
-        write_shape(shape, dst, overwrite=overwrite)
+        placed = [(body, out) for (_, _, body), out in zip(in_groups, made, strict=True)]
+        write_shape(shape if ins.structure is None else Output.place(ins.structure, placed), dst,
+                    overwrite=overwrite)
         times["write"] = time.perf_counter() - t
         if not fast:
             t = time.perf_counter()
@@ -226,9 +231,27 @@ def _patch_volume(model, result, faces: list[int]) -> float:
     return abs(total)
 
 
+def _structure_report(structure, dst: str | None) -> dict | None:
+    """The input's tree (a STEP file's assemblies, parts, placements and names) and how it is
+    written: "tree" (STEP output: the same tree around the converted parts), "flat" (IGES output:
+    the parts as one compound, names not kept) or "plain" (one part and no names: nothing to
+    keep). None where the input has no tree (IGES, or faces sewn)."""
+    from .occ.io import format_of
+
+    if structure is None:
+        return None
+    if structure.trivial():
+        written = "plain"
+    else:
+        written = "tree" if dst is None or format_of(dst) == "step" else "flat"
+    return {**structure.counts(), "written": written, "tree": structure.describe()}
+
+
 def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dict | None = None) -> dict:
-    """Read the written file back and measure I1-I3 on it."""
+    """Read the written file back and measure I1-I3 on it (I3 includes the tree and names where the
+    output is a tree, ``_structure_report``)."""
     from .inspect import inspect, trimmed
+    from .occ.structure import same_tree
     from .report import edge_gap_rows
 
     out = inspect(dst, tol, array_gaps=False, kernel_tracks=False)
@@ -253,12 +276,17 @@ def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dic
         "shells": m.shells,
         "edge_gaps": edge_gap_rows(out.gaps),
     })
+    tree = report.get("structure") and report["structure"]["written"] == "tree"
+    kept = None
+    if tree:
+        kept = out.structure is not None and same_tree(out.structure.describe(), report["structure"]["tree"])
+        report["after"]["structure_kept"] = kept
     return {
         "I1": bezier == len(m.faces),
         "I2": gap <= tol.watertight_rel * model_in.diagonal,
         # open input: the free boundary is split into more edges, but keeps its length
         "I3": ((free == 0) if before_free == 0 else abs(free_len - free_len_in) <= 1e-6 * free_len_in)
-              and m.solids >= model_in.solids,
+              and m.solids >= model_in.solids and kept is not False,
     }
 
 
@@ -283,6 +311,16 @@ def _free_length(model) -> float:
     return total
 
 
+def _structure_lines(st: dict | None, kept: bool | None) -> list[str]:
+    if not st or st["written"] == "plain":
+        return []
+    back = "" if kept is None else f" (read back: {'same' if kept else 'NOT the same'})"
+    how = {"tree": "written as the same tree" + back,
+           "flat": "written flat (IGES: one compound, names not kept)"}[st["written"]]
+    return [f"  structure: {st['assemblies']} assemblies, {st['parts']} parts, {st['instances']} placed, "
+            f"{st['named_bodies']} named bodies; {how}"]
+
+
 def format_full_table(rep: dict) -> str:
     d = rep["diagonal"]
     b, a = rep["before"], rep["after"]
@@ -300,6 +338,7 @@ def format_full_table(rep: dict) -> str:
         f"  deviation: {rep['deviation_after_max']:.3g} (measured per patch, within the bound where "
         f"smaller); bound {rep['bound_after_max']:.3g} (stage 1 {rep['bound_max']:.3g} + substitution "
         f"{rep['substitution_move_max']:.3g}); shared curves {rep['shared_curves']}",
+        *_structure_lines(rep.get("structure"), a.get("structure_kept")),
         "  invariants: " + ", ".join(f"{k} {'ok' if v else 'FAILED'}" for k, v in inv.items()),
         "  time: " + ", ".join(f"{k} {v:.1f}s" for k, v in rep["timings"].items()),
     ]

@@ -16,7 +16,7 @@ from OCP.BRep import BRep_Builder
 from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeSolid
 from OCP.BRepGProp import BRepGProp
 from OCP.GProp import GProp_GProps
-from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
+from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopoDS import TopoDS_Compound, TopoDS_Shape, TopoDS_Shell
 
@@ -25,31 +25,18 @@ from ..topology import JOIN_REL
 from .extract import indexed
 
 
-def input_groups(shape: TopoDS_Shape) -> list[tuple[list[int], bool]]:
-    """The input's shells as (face indices, part of a solid), in the model's face numbering; faces in
-    no shell form one more group."""
+def input_groups(shape: TopoDS_Shape) -> list[tuple[list[int], bool, TopoDS_Shape]]:
+    """The input's bodies as (face indices, is a solid, the body), in the model's face numbering
+    and the order of ``structure.bodies``: every solid (all its shells: a void's faces are the
+    solid's too), then every shell outside solids, then the faces outside shells."""
+    from .structure import bodies
+
     fmap = indexed(shape, TopAbs_FACE)
-    groups: list[tuple[list[int], bool]] = []
-    seen: set[int] = set()
-    ex = TopExp_Explorer(shape, TopAbs_SOLID)
-    while ex.More():
-        sx = TopExp_Explorer(ex.Current(), TopAbs_SHELL)
-        while sx.More():
-            faces = _faces(sx.Current(), fmap)
-            groups.append((faces, True))
-            seen.update(faces)
-            sx.Next()
-        ex.Next()
-    sx = TopExp_Explorer(shape, TopAbs_SHELL, TopAbs_SOLID)
-    while sx.More():
-        faces = [i for i in _faces(sx.Current(), fmap) if i not in seen]
-        if faces:
-            groups.append((faces, False))
-            seen.update(faces)
-        sx.Next()
-    rest = [i for i in range(fmap.Extent()) if i not in seen]
-    if rest:
-        groups.append((rest, False))
+    groups, seen = [], set()
+    for body, solid in bodies(shape):
+        faces = [i for i in _faces(body, fmap) if i not in seen]  # a face of two shells goes to the first
+        seen.update(faces)
+        groups.append((faces, solid, body))
     return groups
 
 
@@ -77,16 +64,17 @@ _REVERT_PASSES = 3
 
 
 def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
-         fold: float = 0.0, fallbacks: list[dict] | None = None) -> tuple[TopoDS_Shape, dict]:
+         fold: float = 0.0, fallbacks: list[dict] | None = None) -> tuple[TopoDS_Shape, dict, list]:
     """Faces of each group of patches ``(ctrl, rational, reversed)`` bounded by shared edges
     (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
     connected part; a solid where the group was a solid's shell and no edge is left free. Patches
     without area are dropped: flat ones, needles, and folds (``topology.folded``) no farther than
     ``fold`` (model units) from their boundary curve; thin two-sided patches with three corners
     at one point are made again as ruled lenses (``topology.lens``) within the same distance.
-    Returns the compound and counts (free edges left, shells, solids, T-vertices, largest edge
-    deviation, patches dropped, lenses, and the largest distance of a fold or lens), and the
-    degree (the larger of the two) of every face built.
+    Returns the compound, counts (free edges left, shells, solids, T-vertices, largest edge
+    deviation, patches dropped, lenses, and the largest distance of a fold or lens, and the
+    degree, the larger of the two, of every face built), and per group what it became (a solid,
+    a shell, a compound of several, or None), which ``structure.Output`` places in the input's tree.
 
     ``fallbacks``, per group, maps a patch's index in the group to the net it was made from
     (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
@@ -101,6 +89,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0, "t_vertices": 0,
             "edge_deviation_max": 0.0, "flat_patches": 0, "folds": 0, "lenses": 0, "fold_width_max": 0.0,
             "triangles_reverted": 0, "degrees": []}
+    bodies: list[TopoDS_Shape | None] = [None] * len(groups)
     for g, (nets, solid) in enumerate(groups):
         if not nets:
             continue
@@ -152,6 +141,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
         info["t_vertices"] += topo.t_vertices
         info["edge_deviation_max"] = max([info["edge_deviation_max"]]
                                          + [m.deviation for e in topo.edges for m in e.members])
+        shells = []
         for part in topo.components():
             shell = TopoDS_Shell()
             builder.MakeShell(shell)
@@ -160,20 +150,66 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             closed = all(len(topo.edges[e].members) >= 2 or topo.edges[e].degenerate
                          for i in part for segs in topo.wires[i].values() for e, _ in segs)
             shell.Closed(closed)
-            info["shells"] += 1
-            if solid and free == 0:
-                body = BRepBuilderAPI_MakeSolid(shell).Solid()
-                if _volume(body) < 0:
-                    body.Reverse()
-                builder.Add(out, body)
-                info["solids"] += 1
-            else:
-                if solid:
-                    info["open_solid_shells"] += 1
-                builder.Add(out, shell)
+            shells.append(shell)
+        info["shells"] += len(shells)
+        if solid and free == 0:
+            made = _solids(shells)
+            info["solids"] += len(made)
+        else:
+            if solid:
+                info["open_solid_shells"] += len(shells)
+            made = shells
+        for body in made:
+            builder.Add(out, body)
+        bodies[g] = made[0] if len(made) == 1 else _compound(made) if made else None
     if out.IsNull():
         raise KernelError(f"{path}: joining the patches failed")
-    return out, info
+    return out, info, bodies
+
+
+def _solids(shells: list) -> list:
+    """Closed shells of one input solid as solids: one shell is one solid, turned to a positive
+    volume; with several, a shell inside the largest is a void of it (its faces turned towards
+    the void), and one outside it a solid of its own."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepClass3d import BRepClass3d_SolidClassifier
+    from OCP.TopAbs import TopAbs_IN, TopAbs_VERTEX
+    from OCP.TopoDS import TopoDS
+
+    made, outward, size = [], [], []
+    for shell in shells:
+        body = BRepBuilderAPI_MakeSolid(shell).Solid()
+        v = _volume(body)
+        if v < 0:
+            body.Reverse()
+        made.append(body)
+        outward.append(v >= 0)
+        size.append(abs(v))
+    if len(made) < 2:
+        return made
+    outer = max(range(len(made)), key=size.__getitem__)
+    voids = []
+    for k in range(len(made)):
+        if k != outer:
+            point = BRep_Tool.Pnt_s(TopoDS.Vertex_s(TopExp_Explorer(shells[k], TopAbs_VERTEX).Current()))
+            if BRepClass3d_SolidClassifier(made[outer], point, 1e-9).State() == TopAbs_IN:
+                voids.append(k)
+    if not voids:
+        return made
+    mk = BRepBuilderAPI_MakeSolid()
+    mk.Add(shells[outer] if outward[outer] else TopoDS.Shell_s(shells[outer].Reversed()))
+    for k in voids:
+        mk.Add(TopoDS.Shell_s(shells[k].Reversed()) if outward[k] else shells[k])
+    return [mk.Solid(), *(made[k] for k in range(len(made)) if k != outer and k not in voids)]
+
+
+def _compound(shapes: list) -> TopoDS_Compound:
+    builder = BRep_Builder()
+    out = TopoDS_Compound()
+    builder.MakeCompound(out)
+    for s in shapes:
+        builder.Add(out, s)
+    return out
 
 
 def volume(shape, adaptive: bool = False) -> float:

@@ -21,11 +21,12 @@ from OCP.IGESData import IGESData_IGESWriter
 from OCP.IGESSelect import IGESSelect_WorkLibrary
 from OCP.Interface import Interface_Static
 from OCP.Message import Message, Message_Gravity
-from OCP.STEPControl import STEPControl_AsIs, STEPControl_Reader, STEPControl_Writer
+from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
 from OCP.TColStd import TColStd_SequenceOfAsciiString
 from OCP.TopoDS import TopoDS_Shape
 
 from ..errors import InputError, OutputError
+from .structure import Output, Structure, read_step, write_step
 
 STEP_SUFFIXES = (".step", ".stp")
 IGES_SUFFIXES = (".igs", ".iges")
@@ -60,6 +61,9 @@ class ReadResult:
     shape: TopoDS_Shape
     format: str  # "step" | "iges"
     units: str  # length unit named in the file, e.g. "MM", "INCH"; geometry is returned in mm
+    # a STEP file's tree of assemblies, parts and names (``structure``); ``shape`` then holds
+    # each part once
+    structure: Structure | None = None
 
 
 def format_of(path: str | Path) -> str:
@@ -115,21 +119,24 @@ def read_shape(path: str | Path) -> ReadResult:
 
     # Reader settings are process-wide in OCCT: set them before every read of a batch.
     Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
+    structure = None
     if fmt == "step":
-        reader = STEPControl_Reader()
         Interface_Static.SetIVal_s("read.step.product.mode", 1)
+        with quiet():
+            parsed, structure, shape, reader = read_step(path)
+        if not parsed:
+            raise InputError(path, "the kernel cannot parse this STEP file")
     else:
         reader = IGESControl_Reader()
         Interface_Static.SetIVal_s("read.iges.bspline.continuity", 0)
-    with quiet():
-        status = reader.ReadFile(str(path))
-        if status != IFSelect_RetDone:
-            raise InputError(path, f"the kernel cannot parse this {fmt.upper()} file (status {int(status)})")
-        nroots = reader.TransferRoots()
-        shape = reader.OneShape() if nroots else None
-    if shape is None or shape.IsNull() or nroots == 0:
+        with quiet():
+            status = reader.ReadFile(str(path))
+            if status != IFSelect_RetDone:
+                raise InputError(path, f"the kernel cannot parse this IGES file (status {int(status)})")
+            shape = reader.OneShape() if reader.TransferRoots() else None
+    if shape is None or shape.IsNull():
         raise InputError(path, "the file holds no shapes the kernel can transfer")
-    return ReadResult(shape=shape, format=fmt, units=_units(reader, fmt))
+    return ReadResult(shape=shape, format=fmt, units=_units(reader, fmt), structure=structure)
 
 
 def _units(reader, fmt: str) -> str:
@@ -149,9 +156,11 @@ def _units(reader, fmt: str) -> str:
             11: "UIN"}.get(int(code), "unknown")
 
 
-def write_shape(shape: TopoDS_Shape, path: str | Path, overwrite: bool = True) -> None:
+def write_shape(shape: TopoDS_Shape | Output, path: str | Path, overwrite: bool = True) -> None:
     """Write a shape to STEP or IGES (by suffix) atomically: temp file in the target folder, then rename.
 
+    An ``Output`` (converted parts in their input's tree) is written to STEP with that tree and its
+    names; IGES, which has no such tree here, gets its parts as one compound.
     Nothing is left behind on failure: the temporary file is removed and the target untouched.
     """
     path = Path(path)
@@ -169,7 +178,12 @@ def write_shape(shape: TopoDS_Shape, path: str | Path, overwrite: bool = True) -
     try:
         Interface_Static.SetCVal_s("write.step.unit", "MM")
         with quiet():
-            if fmt == "step":
+            if isinstance(shape, Output) and (fmt != "step" or shape.structure.trivial()):
+                shape = shape.shape()
+            if isinstance(shape, Output):
+                Interface_Static.SetIVal_s("write.step.schema", 4)  # AP214
+                ok = write_step(shape, tmp)
+            elif fmt == "step":
                 writer = STEPControl_Writer()
                 Interface_Static.SetIVal_s("write.step.schema", 4)  # AP214
                 # a fixed product name: OCCT's default carries a per-process counter (I6)
@@ -240,5 +254,9 @@ def _normalise_header(tmp: str, fmt: str, name: str) -> None:
                   b"FILE_NAME('" + safe.replace(b"\\", b"") + b"','2000-01-01T00:00:00'", data, count=1)
     # OCCT appends a per-process counter to the product name ("part 1", "part 2", ...)
     data = re.sub(rb"PRODUCT\('([^']*) \d+','\1 \d+'", rb"PRODUCT('\1','\1'", data)
+    # and numbers assembly usages with a per-process counter too: number them in file order
+    counter = iter(range(1, 1 << 62))
+    data = re.sub(rb"NEXT_ASSEMBLY_USAGE_OCCURRENCE\('\d+'",
+                  lambda m: b"NEXT_ASSEMBLY_USAGE_OCCURRENCE('%d'" % next(counter), data)
     with open(tmp, "wb") as fh:
         fh.write(data)
