@@ -126,3 +126,25 @@ def test_iges_output_of_an_assembly_is_flat_and_says_so(tmp_path):
     assert rep["ok"]
     assert rep["structure"]["written"] == "flat" and "structure_kept" not in rep["after"]
     assert "written flat (IGES" in format_full_table(rep)
+
+
+@pytest.mark.parametrize("names", [("Part 2", "Part 1"), ("", "")])
+def test_names_are_written_as_read(tmp_path, names):
+    """A name ending in a number is a name ("Part 2": the plain writer's counter suffix was once
+    stripped from every product, which took gmsh__wing_fuselage's "Part 1" and "Part 2" to "Part"),
+    and an unnamed node stays unnamed, in the same bytes each time (the writer names unnamed
+    products with a per-process counter)."""
+    from watertight_cli.occ.io import read_shape, write_shape
+    from watertight_cli.occ.structure import Output, bodies, same_tree
+
+    st = read_shape(fixture_path("assembly.step")).structure
+    st.nodes[st.roots[0]].name, st.nodes[0].name = names  # the root and the first part
+    digests = []
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+        write_shape(Output(st, [[b for b, _ in bodies(p)] for p in st.parts]), tmp_path / sub / "x.step")
+        digests.append(hashlib.sha256((tmp_path / sub / "x.step").read_bytes()).hexdigest())
+    assert digests[0] == digests[1]
+    back = read_shape(tmp_path / "a" / "x.step").structure.describe()
+    assert same_tree(back, st.describe())
+    assert back[0]["name"] == names[0]

@@ -26,7 +26,7 @@ from OCP.TColStd import TColStd_SequenceOfAsciiString
 from OCP.TopoDS import TopoDS_Shape
 
 from ..errors import InputError, OutputError
-from .structure import Output, Structure, read_step, write_step
+from .structure import UNNAMED, Output, Structure, read_step, write_step
 
 STEP_SUFFIXES = (".step", ".stp")
 IGES_SUFFIXES = (".igs", ".iges")
@@ -195,7 +195,7 @@ def write_shape(shape: TopoDS_Shape | Output, path: str | Path, overwrite: bool 
                 ok = _write_iges(shape, tmp)
         if not ok or os.path.getsize(tmp) == 0:
             raise OutputError(path, f"the kernel failed to write {fmt.upper()}")
-        _normalise_header(tmp, fmt, path.name)
+        _normalise_header(tmp, fmt, path.name, named=isinstance(shape, Output))
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual permissions
         os.replace(tmp, path)
     except BaseException:
@@ -237,11 +237,12 @@ def _umask() -> int:
     return mask
 
 
-def _normalise_header(tmp: str, fmt: str, name: str) -> None:
+def _normalise_header(tmp: str, fmt: str, name: str, named: bool = False) -> None:
     """Make output bytes depend on the input only (invariant I6).
 
     OCCT writes the temporary file's name and the current time into the STEP header; put the
-    final name and a fixed time stamp there instead.
+    final name and a fixed time stamp there instead. ``named``: the products carry the input's
+    names (an ``Output``), which are kept as they are ("Part 1" is a name, not a counter).
     """
     if fmt != "step":
         return
@@ -252,8 +253,10 @@ def _normalise_header(tmp: str, fmt: str, name: str) -> None:
     safe = name.replace("'", "").encode("utf-8", "replace")
     data = re.sub(rb"FILE_NAME\('[^']*','[^']*'",
                   b"FILE_NAME('" + safe.replace(b"\\", b"") + b"','2000-01-01T00:00:00'", data, count=1)
-    # OCCT appends a per-process counter to the product name ("part 1", "part 2", ...)
-    data = re.sub(rb"PRODUCT\('([^']*) \d+','\1 \d+'", rb"PRODUCT('\1','\1'", data)
+    if not named:  # OCCT appends a per-process counter to the product name ("part 1", "part 2", ...)
+        data = re.sub(rb"PRODUCT\('([^']*) \d+','\1 \d+'", rb"PRODUCT('\1','\1'", data)
+    else:  # unnamed items were written with a placeholder (``structure.UNNAMED``)
+        data = re.sub(rb"'" + UNNAMED.encode() + rb"\w*'", b"''", data)
     # and numbers assembly usages with a per-process counter too: number them in file order
     counter = iter(range(1, 1 << 62))
     data = re.sub(rb"NEXT_ASSEMBLY_USAGE_OCCURRENCE\('\d+'",

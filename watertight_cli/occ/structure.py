@@ -36,6 +36,8 @@ from OCP.XCAFDoc import XCAFDoc_DocumentTool, XCAFDoc_ShapeTool
 
 STEPCAFControl_Controller.Init_s()  # registers the write.stepcaf.* parameters
 
+#: the name given to an unnamed node or component when written; ``io`` makes it '' in the file
+UNNAMED = "watertight-unnamed-"
 #: names that exporters write where an item has none (STEP's '' and CATIA's / SolidWorks' 'NONE')
 _NO_NAME = ("", "NONE")
 
@@ -321,10 +323,12 @@ def write_step(out: Output, tmp: str) -> bool:
             label = tool.NewShape()
             for c in node.components:
                 comp = tool.AddComponent(label, make(c.node), c.location)
-                if c.name:
-                    _set_name(comp, c.name)
-        if node.name:
-            _set_name(label, node.name)
+                # a component without a name reads back named by its usage id, which ``io``
+                # numbers in file order: the input's own names (its ids where it had no names) are kept
+                _set_name(comp, c.name or f"{UNNAMED}c")
+        # unnamed, the writer would name it with a per-process counter: a placeholder instead,
+        # which ``io`` makes '' again (``UNNAMED``)
+        _set_name(label, node.name or f"{UNNAMED}{i}")
         labels[i] = label
         return label
 
