@@ -1601,7 +1601,7 @@ def _unshared_rungs(fr: FaceResult, slide: float) -> int:
     """Rungs of the face's cells that run along one of its edges but cannot take the edge's curve
     in stage 2 (by stage 2's own test, ``substitute._rung_ref``: the rung spans more than one plan
     piece, or the edge's parameter is too far from affine along it)."""
-    from .substitute import _rung_ref, _side_length  # imported here: substitute imports this module
+    from .substitute import IsoPieces, _rung_ref, _side_length  # here: substitute imports this module
 
     iso = [q for q in fr.iso_pieces if not q.degenerate and q.edge is not None]
     if not iso or fr.eps is None:
@@ -1609,13 +1609,14 @@ def _unshared_rungs(fr: FaceResult, slide: float) -> int:
     ends = np.array([q.H[[0, -1], :2] / q.H[[0, -1], 2:3] for q in iso])  # (k, 2, 2)
     qu, qlo, qhi = ends[:, 0, 0], ends[:, :, 1].min(axis=1), ends[:, :, 1].max(axis=1)
     eu, ev = fr.eps
+    table = IsoPieces(fr.iso_pieces)
     n = 0
     for p in fr.patches:
         cm = cell_map(p, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
         for k, (a, b) in enumerate(cm):
             lo, hi = min(a[1], b[1]) + ev, max(a[1], b[1]) - ev
             if np.any((np.abs(qu - a[0]) <= 2 * eu) & (qlo < hi) & (qhi > lo)):  # along an edge
-                n += _rung_ref(fr.iso_pieces, a, b, fr.eps, _side_length(p, k), slide) is None
+                n += _rung_ref(table, a, b, fr.eps, _side_length(p, k), slide) is None
     return n
 
 
