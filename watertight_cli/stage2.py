@@ -89,7 +89,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     problems = [p for _, _, fs, _ in faces for p in fs.problems]
     degrees = joined["degrees"]  # of the faces built: remade, reverted or as stage 2 left them
     vol_kernel = volume(ins.shape, adaptive=True) if model.solids else None
-    vol_out = volume(shape) if joined["solids"] else None
+    vol_out = joined["volume"] if joined["solids"] else None  # from the patches, as vol_in
 
     report.update({
         "stage": "full",
