@@ -541,7 +541,7 @@ def _divide(omega: np.ndarray, kappa: np.ndarray) -> np.ndarray | None:
     d, k = len(omega) - 1, len(kappa) - 1
     if d < k:
         return None
-    A = np.stack([product(kappa, e) for e in np.eye(d - k + 1)], axis=1)
+    A = product(kappa, np.eye(d - k + 1))  # column j: kappa times the j-th Bernstein basis polynomial
     if d == k:
         g = np.array([omega[0] / kappa[0]])
     else:
