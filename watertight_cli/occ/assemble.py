@@ -7,7 +7,8 @@ that structure from the patches (one vertex per corner, T-vertices, one edge per
 straight segments on the sides of [0, 1]^2 and same-parameter by construction. (Sewing, used
 before, recomputed pcurves by projection: some came back curved or off the sides, a pole's
 degenerated edge was dropped, and such faces read back as trimmed.) A shell that was closed in
-the input becomes a solid again; its orientation is checked by its volume.
+the input becomes a solid again, oriented by its volume from the patches (divergence theorem);
+a solid's void shells stay in it.
 """
 
 from __future__ import annotations
