@@ -148,3 +148,22 @@ def test_names_are_written_as_read(tmp_path, names):
     back = read_shape(tmp_path / "a" / "x.step").structure.describe()
     assert same_tree(back, st.describe())
     assert back[0]["name"] == names[0]
+
+
+def test_stage_one_output_keeps_the_tree(tmp_path):
+    """``--stage untrim`` writes one open shell per input body, each in its part of the input's tree
+    (before: every part's patches in one shell, each part once, unplaced)."""
+    from OCP.TopAbs import TopAbs_FACE
+
+    from watertight_cli.convert import convert_file
+    from watertight_cli.occ.io import read_shape
+
+    out = tmp_path / "s1.step"
+    rep = convert_file(str(fixture_path("assembly.step")), str(out), Tolerances(), stage="untrim")
+    st = read_shape(out).structure
+    assert {k: v for k, v in st.counts().items() if k != "named_bodies"} == {
+        "parts": 2, "assemblies": 2, "instances": 5}
+    # each part once in the tree's parts, four plates and one hollow block when placed
+    parts = read_shape(out).shape
+    assert _count(parts, TopAbs_FACE) == rep["faces_written"]
+    assert _count(_plain_read(out), TopAbs_FACE) > 2 * rep["faces_written"]

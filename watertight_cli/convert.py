@@ -107,11 +107,13 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
         return finish(ins, result, report, tol, src, dst, progress, overwrite, fast, keep,
                       [fc.side_per_patch for fc in check.faces])
     if dst is not None:
+        from .occ.assemble import input_groups
+        from .occ.structure import Output
         from .topology import JOIN_REL, flat
 
         t = time.perf_counter()
         tick = progress("build", len(result.patches)) if progress else None
-        faces = []
+        faces: dict[int, list] = {}
         dropped = 0
         for p in result.patches:
             # a patch without area (every row one point: a cell between coinciding sides) is not a
@@ -120,11 +122,18 @@ def convert_file(src: str, dst: str | None, tol: Tolerances, stage: str = "full"
             if flat(p.ctrl, p.rational, JOIN_REL * model.diagonal):
                 dropped += 1
             else:
-                faces.append(patch_face(p.ctrl, p.rational, model.faces[p.face].reversed))
+                face = patch_face(p.ctrl, p.rational, model.faces[p.face].reversed)
+                faces.setdefault(p.face, []).append(face)
             if tick is not None:
                 tick(1)
-        write_shape(open_shell(faces), dst, overwrite=overwrite)
-        report["faces_written"], report["flat_patches_dropped"] = len(faces), dropped
+        if ins.structure is None:
+            shape = open_shell([f for i in sorted(faces) for f in faces[i]])
+        else:  # one open shell per input body, placed in the input's tree
+            shape = Output.place(ins.structure, [
+                (body, open_shell([f for i in group for f in faces.get(i, [])]))
+                for group, _, body in input_groups(ins.shape)])
+        write_shape(shape, dst, overwrite=overwrite)
+        report["faces_written"], report["flat_patches_dropped"] = sum(map(len, faces.values())), dropped
         times["write"] = time.perf_counter() - t
     report["timings"] = times
     return report
