@@ -25,6 +25,19 @@ def _plain_read(path):
     return reader.OneShape()
 
 
+def _write_twice(st, folder) -> list[str]:
+    """The input's parts written with the tree ``st`` into folder/a and folder/b: the files' digests."""
+    from watertight_cli.occ.io import write_shape
+    from watertight_cli.occ.structure import Output, bodies
+
+    digests = []
+    for sub in ("a", "b"):
+        (folder / sub).mkdir()
+        write_shape(Output(st, [[b for b, _ in bodies(p)] for p in st.parts]), folder / sub / "x.step")
+        digests.append(hashlib.sha256((folder / sub / "x.step").read_bytes()).hexdigest())
+    return digests
+
+
 def _count(shape, kind) -> int:
     from watertight_cli.occ.extract import count
 
@@ -105,17 +118,11 @@ def test_an_assembly_is_written_with_its_tree_names_and_void(converted):
 
 def test_a_tree_is_written_the_same_twice(converted, tmp_path):
     """I6 for the XCAF writer: the same parts and tree give the same bytes."""
-    from watertight_cli.occ.io import read_shape, write_shape
-    from watertight_cli.occ.structure import Output, bodies
+    from watertight_cli.occ.io import read_shape
 
     _, out = converted
-    st = read_shape(out).structure
-    digests = []
-    for sub in ("a", "b"):
-        (tmp_path / sub).mkdir()
-        write_shape(Output(st, [[b for b, _ in bodies(p)] for p in st.parts]), tmp_path / sub / "x.step")
-        digests.append(hashlib.sha256((tmp_path / sub / "x.step").read_bytes()).hexdigest())
-    assert digests[0] == digests[1]
+    a, b = _write_twice(read_shape(out).structure, tmp_path)
+    assert a == b
 
 
 def test_iges_output_of_an_assembly_is_flat_and_says_so(tmp_path):
@@ -134,17 +141,13 @@ def test_names_are_written_as_read(tmp_path, names):
     stripped from every product, which took gmsh__wing_fuselage's "Part 1" and "Part 2" to "Part"),
     and an unnamed node stays unnamed, in the same bytes each time (the writer names unnamed
     products with a per-process counter)."""
-    from watertight_cli.occ.io import read_shape, write_shape
-    from watertight_cli.occ.structure import Output, bodies, same_tree
+    from watertight_cli.occ.io import read_shape
+    from watertight_cli.occ.structure import same_tree
 
     st = read_shape(fixture_path("assembly.step")).structure
     st.nodes[st.roots[0]].name, st.nodes[0].name = names  # the root and the first part
-    digests = []
-    for sub in ("a", "b"):
-        (tmp_path / sub).mkdir()
-        write_shape(Output(st, [[b for b, _ in bodies(p)] for p in st.parts]), tmp_path / sub / "x.step")
-        digests.append(hashlib.sha256((tmp_path / sub / "x.step").read_bytes()).hexdigest())
-    assert digests[0] == digests[1]
+    a, b = _write_twice(st, tmp_path)
+    assert a == b
     back = read_shape(tmp_path / "a" / "x.step").structure.describe()
     assert same_tree(back, st.describe())
     assert back[0]["name"] == names[0]

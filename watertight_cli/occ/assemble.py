@@ -24,17 +24,17 @@ from OCP.TopoDS import TopoDS_Compound, TopoDS_Shape, TopoDS_Shell
 from ..errors import KernelError
 from ..topology import JOIN_REL
 from .extract import indexed
+from .structure import bodies as input_bodies
+from .structure import compound
 
 
 def input_groups(shape: TopoDS_Shape) -> list[tuple[list[int], bool, TopoDS_Shape]]:
     """The input's bodies as (face indices, is a solid, the body), in the model's face numbering
     and the order of ``structure.bodies``: every solid (all its shells: a void's faces are the
     solid's too), then every shell outside solids, then the faces outside shells."""
-    from .structure import bodies
-
     fmap = indexed(shape, TopAbs_FACE)
     groups, seen = [], set()
-    for body, solid in bodies(shape):
+    for body, solid in input_bodies(shape):
         faces = [i for i in _faces(body, fmap) if i not in seen]  # a face of two shells goes to the first
         seen.update(faces)
         groups.append((faces, solid, body))
@@ -170,7 +170,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             made = shells
         for body in made:
             builder.Add(out, body)
-        bodies[g] = made[0] if len(made) == 1 else _compound(made) if made else None
+        bodies[g] = made[0] if len(made) == 1 else compound(made) if made else None
     if out.IsNull():
         raise KernelError(f"{path}: joining the patches failed")
     return out, info, bodies
@@ -211,15 +211,6 @@ def _solids(shells: list, vols: list[float]) -> tuple[list, list[float]]:
     rest = [k for k in range(len(made)) if k != outer and k not in voids]
     return ([mk.Solid(), *(made[k] for k in rest)],
             [size[outer] - sum(size[k] for k in voids), *(size[k] for k in rest)])
-
-
-def _compound(shapes: list) -> TopoDS_Compound:
-    builder = BRep_Builder()
-    out = TopoDS_Compound()
-    builder.MakeCompound(out)
-    for s in shapes:
-        builder.Add(out, s)
-    return out
 
 
 def volume(shape, adaptive: bool = False) -> float:

@@ -75,7 +75,7 @@ class Structure:
         """What the pipeline converts: the one part, or a compound of the parts (each once)."""
         if len(self.parts) == 1:
             return self.parts[0]
-        return _compound(self.parts)
+        return compound(self.parts)
 
     def trivial(self) -> bool:
         """One root part with no names worth keeping: writing it plainly loses nothing."""
@@ -143,7 +143,7 @@ def bodies(shape: TopoDS_Shape) -> list[tuple[TopoDS_Shape, bool]]:
         loose.append(ex.Current())
         ex.Next()
     if loose:
-        out.append((_compound(loose), False))
+        out.append((compound(loose), False))
     return out
 
 
@@ -260,7 +260,8 @@ def _matrix(location: TopLoc_Location) -> np.ndarray:
     return np.array([[t.Value(i, j) for j in range(1, 5)] for i in range(1, 4)])
 
 
-def _compound(shapes) -> TopoDS_Compound:
+def compound(shapes) -> TopoDS_Compound:
+    """The shapes in one compound."""
     builder = BRep_Builder()
     out = TopoDS_Compound()
     builder.MakeCompound(out)
@@ -291,7 +292,7 @@ class Output:
 
     def shape(self) -> TopoDS_Shape:
         """The converted parts as one compound (each part once), for formats without a tree."""
-        return _compound([s for part in self.parts for s in part if s is not None])
+        return compound([s for part in self.parts for s in part if s is not None])
 
 
 def write_step(out: Output, tmp: str) -> bool:
@@ -312,7 +313,7 @@ def write_step(out: Output, tmp: str) -> bool:
             names = st.body_names[node.part]
             # a part of one unnamed body is that body; a named body must be a sub-shape of its
             # part to carry its name, so it goes into a compound
-            shape = shapes[0] if len(shapes) == 1 and not any(names) else _compound(shapes)
+            shape = shapes[0] if len(shapes) == 1 and not any(names) else compound(shapes)
             label = tool.AddShape(shape, False, False)
             for s, name in zip(out.parts[node.part], names, strict=True):
                 if s is not None and name:
