@@ -85,7 +85,7 @@ class Structure:
     def describe(self) -> list[dict]:
         """The tree as plain data: per root, nested {"name", "components": [{"name", "placement",
         "node"}]} for an assembly, {"name", "bodies": [{"kind", "name"}]} for a part; a placement is
-        the 3 x 4 matrix of its transformation, rounded to 9 digits."""
+        the 3 x 4 matrix of its transformation (``same_tree`` compares two)."""
 
         def node(i: int) -> dict:
             n = self.nodes[i]
