@@ -75,8 +75,8 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     Returns the compound, counts (free edges left, shells, solids, T-vertices, largest edge
     deviation, patches dropped, lenses, the largest distance of a fold or lens, the degree, the
     larger of the two, of every face built, and the solids' summed volume from their patches), and
-    per group what it became (a solid,
-    a shell, a compound of several, or None), which ``structure.Output`` places in the input's tree.
+    per group what it became (a solid, a shell, a compound of several, or None), which
+    ``structure.Output`` places in the input's tree.
 
     ``fallbacks``, per group, maps a patch's index in the group to the net it was made from
     (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
