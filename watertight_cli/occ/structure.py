@@ -23,14 +23,15 @@ from OCP.IFSelect import IFSelect_RetDone
 from OCP.Interface import Interface_Static
 from OCP.STEPCAFControl import STEPCAFControl_Controller, STEPCAFControl_Reader, STEPCAFControl_Writer
 from OCP.STEPControl import STEPControl_AsIs
-from OCP.TCollection import TCollection_ExtendedString
+from OCP.TCollection import TCollection_AsciiString, TCollection_ExtendedString
 from OCP.TDataStd import TDataStd_Name
-from OCP.TDF import TDF_Label, TDF_LabelSequence
+from OCP.TDF import TDF_Label, TDF_LabelSequence, TDF_Tool
 from OCP.TDocStd import TDocStd_Document
 from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS_Compound, TopoDS_Shape
+from OCP.TopTools import TopTools_IndexedMapOfShape
 from OCP.XCAFApp import XCAFApp_Application
 from OCP.XCAFDoc import XCAFDoc_DocumentTool, XCAFDoc_ShapeTool
 
@@ -225,9 +226,6 @@ def _structure(doc, step) -> Structure | None:
 
 
 def _entry(label: TDF_Label) -> str:
-    from OCP.TCollection import TCollection_AsciiString
-    from OCP.TDF import TDF_Tool
-
     s = TCollection_AsciiString()
     TDF_Tool.Entry_s(label, s)
     return s.ToCString()
@@ -282,12 +280,22 @@ class Output:
     def place(cls, structure: Structure, made: list[tuple[TopoDS_Shape, TopoDS_Shape | None]]) -> Output:
         """The output of every input body (``made``: pairs of an input body of the converted shape and
         what it became) placed in its part."""
-        # a body is known by its first face (the loose faces' compound is made anew by ``bodies``)
-        firsts = [(_first_face(body), out) for body, out in made]
+        # a body is known by its first face (the loose faces' compound is made anew by ``bodies``),
+        # looked up in one map rather than compared with every other body's
+        firsts, outs = TopTools_IndexedMapOfShape(), []
+        for body, out in made:
+            face = _first_face(body)
+            if face is not None and not firsts.Contains(face):
+                firsts.Add(face)
+                outs.append(out)
         parts = []
         for part in structure.parts:
-            parts.append([next((out for f, out in firsts if f is not None and f.IsSame(_first_face(b))), None)
-                          for b, _ in bodies(part)])
+            row = []
+            for b, _ in bodies(part):
+                face = _first_face(b)
+                k = firsts.FindIndex(face) if face is not None else 0
+                row.append(outs[k - 1] if k > 0 else None)
+            parts.append(row)
         return cls(structure, parts)
 
     def shape(self) -> TopoDS_Shape:
