@@ -387,9 +387,79 @@ def test_slab_lines_closer_than_a_sliver_in_3d_merge():
     face = Face(0, surf, "BSpline", False, (), (0.0, 1.0, 0.0, 1.0))
     g = _FaceGeometry(face, 1.0, TOL)  # sliver 1e-8
     lines = np.array([0.2, 0.5, 0.5 + 5e-6, 0.5 + 1e-4])
-    out = _merge_thin(lines, {0.5 + 5e-6}, face, g)
+    # the knot line is pinned: beyond a sliver, nothing merges into its group
+    out, index = _merge_thin(lines, {0.5 + 5e-6}, face, g, {}, {2})
     # 0.5 and 0.5 + 5e-6 are 5e-9 apart at most: merged, the knot line kept; 1e-4 -> 1e-7: kept
     np.testing.assert_array_equal(out, [0.2, 0.5 + 5e-6, 0.5 + 1e-4])
+    np.testing.assert_array_equal(index, [0, 1, 1, 2])
+    # unpinned, 1e-7 apart is within Tolerances.thin_rel (5e-7): the three lines become one
+    out, index = _merge_thin(lines, {0.5 + 5e-6}, face, g, {}, set())
+    np.testing.assert_array_equal(out, [0.2, 0.5 + 5e-6])
+    np.testing.assert_array_equal(index, [0, 1, 1, 1])
+
+
+def _square_with_cuts(top_cut: float, bottom_cut: float):
+    """A unit square face (the plane z = 0) whose top side is cut at u = ``top_cut`` and its bottom
+    side at ``bottom_cut``, as a neighbour's edge plan cuts them: pieces of a closed loop."""
+    from watertight_cli.model import BSplineSurface, Face
+    from watertight_cli.untrim import _Piece
+
+    uu, vv = np.meshgrid(np.linspace(0, 1, 2), np.linspace(0, 1, 2), indexing="ij")
+    surf = BSplineSurface(1, 1, np.array([0.0, 0.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0, 1.0]),
+                          np.stack([uu, vv, 0.0 * uu], axis=-1))
+    face = Face(0, surf, "BSpline", False, (), (0.0, 1.0, 0.0, 1.0))
+    loop = [(0, 0), (bottom_cut, 0), (1, 0), (1, 1), (top_cut, 1), (0, 1)]
+    pieces = [_Piece(np.array([[*a, 1.0], [*b, 1.0]]), k, 0.0, 1.0, False)
+              for k, (a, b) in enumerate(zip(loop, loop[1:] + loop[:1]))]
+    return face, pieces
+
+
+def test_slab_lines_a_thin_strip_apart_merge_and_the_cells_still_tile_the_face():
+    """trj8's planar faces 40 and 49: a neighbour's two cuts landed 4.1e-5 apart in u, far apart
+    in v, and each made a slab line across the whole face, a strip 4.1e-5 x 42 that BRepMesh left
+    partly untriangulated. Lines closer than Tolerances.thin_rel merge where every end on them is
+    passed through: two cells, whose shared rung runs from one cut to the other, tile the face."""
+    from watertight_cli.untrim import FaceResult, _cells, _FaceGeometry
+
+    d = 2e-7  # in 3D too (the plane's speed is 1); the diagonal is 1: sliver 1e-8, thin 5e-7
+    face, pieces = _square_with_cuts(0.5, 0.5 + d)
+    g = _FaceGeometry(face, 1.0, TOL)
+    cells = list(_cells(face, pieces, g, FaceResult(0)))
+    assert len(cells) == 2
+    (_, _, b0, t0), (_, _, b1, t1) = cells
+    ends = [s.H[k, :2] / s.H[k, 2] for s in (b0, t0, b1, t1) for k in (0, -1)]
+    # the left cell ends, and the right one starts, at both cuts: one shared (bent) rung
+    np.testing.assert_array_equal(ends[1], ends[4])  # bottom: (0.5 + d, 0)
+    np.testing.assert_array_equal(ends[3], ends[6])  # top: (0.5, 1)
+    np.testing.assert_allclose(ends[1], [0.5 + d, 0.0])
+    np.testing.assert_allclose(ends[3], [0.5, 1.0])
+    # with thin merging off, the same face keeps the strip between the two lines
+    g_off = _FaceGeometry(face, 1.0, TOL.with_(thin_rel=TOL.sliver_rel))
+    assert len(list(_cells(face, pieces, g_off, FaceResult(0)))) == 3
+
+
+def test_a_turning_end_pins_its_slab_line():
+    """An end where both pieces leave to one side (a u-extremum of the loop) keeps its line: the
+    cell beyond would run straight past it and leave a thin triangle uncovered. So does a piece
+    that joins two lines of a group (it would become an iso piece), through ``links``."""
+    from watertight_cli.untrim import _Piece, _thin_merge_rules
+
+    lines = np.array([0.0, 0.5, 0.5 + 1e-7, 1.0])
+
+    def piece(a, b):
+        return _Piece(np.array([[*a, 1.0], [*b, 1.0]]), 0, 0.0, 1.0, False)
+
+    # (0.5 + 1e-7, 0.5) turns: both of its pieces run to the left
+    links, pinned = _thin_merge_rules(lines, [piece((0, 0.2), (0.5 + 1e-7, 0.5)),
+                                              piece((0.5 + 1e-7, 0.5), (0, 0.8))], set())
+    assert 2 in pinned
+    # (0.5, 0.3) is passed through: line 1 stays free (the open ends pin lines 0 and 3)
+    links, pinned = _thin_merge_rules(lines, [piece((0, 0.3), (0.5, 0.3)), piece((0.5, 0.3), (1, 0.3))],
+                                      set())
+    assert pinned == {0, 3}
+    # a piece from line 1 to line 2
+    links, _ = _thin_merge_rules(lines, [piece((0.5, 0.6), (0.5 + 1e-7, 0.6))], set())
+    assert links == {2: 1}
 
 
 def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():

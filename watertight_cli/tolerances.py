@@ -45,6 +45,14 @@ class Tolerances:
         3D, through the surface's speed) are merged. 1e-8 of the diagonal is 1e-6 mm on a 100 mm
         part, ten times OCCT's confusion tolerance (1e-7), so no patch side is shorter than what
         the kernel keeps as an edge; the coverage this gives up is a strip at most this wide.
+    thin_rel:
+        Slab lines closer than this (in 3D, all along the face) merge too, but only where every
+        cell beside them keeps a rung that its neighbour across the line shares: the merged line
+        then bends a little through the piece ends it carries, and nothing is left uncovered, so
+        the merge costs no deviation. 5e-7 of the diagonal, half the default ``approx_rel``: a
+        strip narrower than that is below what the tolerance resolves, and as a patch 4e-5 wide
+        and 42 long (trj8's planar faces 40 and 49, where a neighbour's cuts land 4e-5 apart in u)
+        it is a face that BRepMesh leaves partly untriangulated.
     max_degree:
         Largest patch degree (``--max-degree``). 25 is OCCT's Bezier limit
         (``Geom_BezierSurface::MaxDegree``).
@@ -59,6 +67,7 @@ class Tolerances:
     watertight_rel: float = 1e-12
     sew_max_rel: float = 2e-2
     sliver_rel: float = 1e-8
+    thin_rel: float = 5e-7
     max_degree: int = 25
     strict: bool = False
 

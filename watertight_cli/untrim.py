@@ -31,7 +31,8 @@ Real files need repairs before step 2, each bounded and added to the face's boun
 consecutive pcurves leave uv gaps are closed (``_close_loops``); pcurves, or stretches of them, that
 wiggle around an iso-line within half the tolerance become exact iso-lines (``_flatten``); pieces that
 closing turned back are cut again at their extrema (``_monotone``). Slab lines closer than a sliver
-(``Tolerances.sliver_rel``) merge, and a folded cell that halving cannot mend is given lower-degree
+(``Tolerances.sliver_rel``) merge, and so do lines closer than ``Tolerances.thin_rel`` where every
+end on them is passed through (``_thin_merge_rules``); a folded cell that halving cannot mend is given lower-degree
 sides within the tolerance (``_unfold``) or, when thinner than a sliver, dropped.
 
 Every patch records the exact cell map (its two sides, in the face's global uv) so that the own verify
@@ -369,6 +370,7 @@ class _FaceGeometry:
         # slab lines closer than a sliver merge (see Tolerances.sliver_rel)
         self.ueps_lines = max(self.ueps, tol.sliver_rel * diagonal / su if su > 0 else 0.0)
         self.sliver = tol.sliver_rel * diagonal
+        self.thin = max(tol.thin_rel * diagonal, self.sliver)
         self.breaks = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
 
     def speed_over(self, points: np.ndarray) -> np.ndarray:
@@ -499,28 +501,69 @@ def _ends_onto_knots(ends_uv: np.ndarray, knots: list[float], face: Face, g: _Fa
     return [float(x) for x in u]
 
 
-def _merge_thin(lines: np.ndarray, exact: set[float], face: Face, g: _FaceGeometry) -> np.ndarray:
+def _merge_thin(lines: np.ndarray, exact: set[float], face: Face, g: _FaceGeometry,
+                links: dict[int, int], pinned: set[int]) -> tuple[np.ndarray, np.ndarray]:
     """Merge consecutive slab lines that stand less than a sliver apart in 3D all along the face's
     v-range. ``ueps_lines`` merges by the surface's largest speed; where the surface is much slower
     (near a pole) two lines 2e-7 apart in u were 0 to 7e-8 apart in 3D, a slab below the edge
-    tolerance that read back as a gap (filleted_freeform's face 7). A knot line wins."""
+    tolerance that read back as a gap (filleted_freeform's face 7). A knot line wins.
+
+    Lines up to ``g.thin`` apart (``Tolerances.thin_rel``) merge too, into the group's first line,
+    when no line of the group is ``pinned`` and no piece joins two of its lines (``links``: line ->
+    the highest lower line that a piece joins it to): see ``_thin_merge_rules``. Returns the lines
+    and, for every line given, the index of the line it became."""
     if len(lines) < 2 or g.sliver <= 0:
-        return lines
+        return lines, np.arange(len(lines))
     u0, u1, v0, v1 = face.uv_bounds
     vs = np.linspace(v0, v1, 17)
     near = 1e-3 * max(u1 - u0, 1e-300)
-    out = [float(lines[0])]
-    for x in map(float, lines[1:]):
+    out, index = [float(lines[0])], [0]
+    start = 0  # the first of the given lines that out[-1] stands for
+    for i, x in enumerate(map(float, lines[1:]), start=1):
         a = out[-1]
         if x - a <= near:
             pa = face.surface.evaluate(np.column_stack([np.full(len(vs), a), vs]))
             pb = face.surface.evaluate(np.column_stack([np.full(len(vs), x), vs]))
-            if float(np.linalg.norm(pa - pb, axis=1).max()) <= g.sliver:
+            apart = float(np.linalg.norm(pa - pb, axis=1).max())
+            if apart <= g.sliver or (apart <= g.thin and links.get(i, -1) < start
+                                     and not pinned.intersection(range(start, i + 1))):
                 if x in exact and a not in exact:
                     out[-1] = x
+                index.append(len(out) - 1)
                 continue
         out.append(x)
-    return np.array(out)
+        index.append(len(out) - 1)
+        start = i
+    return np.array(out), np.array(index)
+
+
+def _thin_merge_rules(lines: np.ndarray, pieces: list[_Piece], knots: set[float]) -> tuple[dict, set]:
+    """What keeps slab lines from merging beyond a sliver (``_merge_thin``).
+
+    A merged line passes through the ends on it, bent by up to ``Tolerances.thin_rel``; the cells
+    on both sides take the straight segment between their bottom's and top's ends as their rung,
+    and they share it when every end on the line is passed through: one piece leaves it to the
+    left and one to the right. Lines that hold a turning end (both pieces on one side: the other
+    side's cell would run straight past it, a thin triangle uncovered), an iso piece (it would be
+    left off the line), or a knot line (cells must stay within one span) are ``pinned``. A piece
+    running from one line of a group to another would become an iso piece: ``links`` maps each
+    line to the highest lower line that a piece joins it to."""
+    links: dict[int, int] = {}
+    pinned = {k for k, x in enumerate(lines) if float(x) in knots}
+    sides: dict[tuple[float, float], list[int]] = {}
+    for p in pieces:
+        i, j = (_nearest(lines, float(p.H[k, 0] / p.H[k, 2])) for k in (0, -1))
+        if i == j:
+            pinned.add(i)
+            continue
+        links[max(i, j)] = max(links.get(max(i, j), -1), min(i, j))
+        for k, towards in ((0, j - i), (-1, i - j)):
+            end = (float(p.H[k, 0] / p.H[k, 2]), float(p.H[k, 1] / p.H[k, 2]))
+            sides.setdefault(end, []).append(1 if towards > 0 else -1)
+    for end, sd in sides.items():
+        if len(sd) != 2 or sum(sd) != 0:
+            pinned.add(_nearest(lines, end[0]))
+    return links, pinned
 
 
 def _iso_side(a: float, b: float, c: float) -> Side:
@@ -540,15 +583,15 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     lo, hi = float(ends_uv[:, 0].min()), float(ends_uv[:, 0].max())
     inner_u = [float(x) for x in ub[1:-1] if lo + ueps < x < hi - ueps]
     ends = _ends_onto_knots(ends_uv, inner_u, face, g)
-    lines = _cluster(ends + inner_u, set(inner_u), ueps)
-    lines = _merge_thin(lines, set(inner_u), face, g)
+    first = _cluster(ends + inner_u, set(inner_u), ueps)
+    lines, index = _merge_thin(first, set(inner_u), face, g, *_thin_merge_rules(first, pieces, set(inner_u)))
     slabs: list[list[_Piece]] = [[] for _ in range(len(lines) - 1)]
     for p in pieces:
         p = _orient_u(p)
         a, b = p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2]
         # every end was clustered into a line: a piece runs from its first end's line to its last
         # end's line, so one rule decides both the lines and which pieces lie on a line
-        i, j = _nearest(lines, a), _nearest(lines, b)
+        i, j = index[_nearest(first, a)], index[_nearest(first, b)]
         if i == j:
             fr.iso_pieces.append(p)
             if b - a > g.ueps:
