@@ -410,7 +410,7 @@ def _square_with_cuts(top_cut: float, bottom_cut: float):
     face = Face(0, surf, "BSpline", False, (), (0.0, 1.0, 0.0, 1.0))
     loop = [(0, 0), (bottom_cut, 0), (1, 0), (1, 1), (top_cut, 1), (0, 1)]
     pieces = [_Piece(np.array([[*a, 1.0], [*b, 1.0]]), k, 0.0, 1.0, False)
-              for k, (a, b) in enumerate(zip(loop, loop[1:] + loop[:1]))]
+              for k, (a, b) in enumerate(zip(loop, loop[1:] + loop[:1], strict=True))]
     return face, pieces
 
 

@@ -32,8 +32,8 @@ consecutive pcurves leave uv gaps are closed (``_close_loops``); pcurves, or str
 wiggle around an iso-line within half the tolerance become exact iso-lines (``_flatten``); pieces that
 closing turned back are cut again at their extrema (``_monotone``). Slab lines closer than a sliver
 (``Tolerances.sliver_rel``) merge, and so do lines closer than ``Tolerances.thin_rel`` where every
-end on them is passed through (``_thin_merge_rules``); a folded cell that halving cannot mend is given lower-degree
-sides within the tolerance (``_unfold``) or, when thinner than a sliver, dropped.
+end on them is passed through (``_thin_merge_rules``); a folded cell that halving cannot mend is
+given lower-degree sides within the tolerance (``_unfold``) or, when thinner than a sliver, dropped.
 
 Every patch records the exact cell map (its two sides, in the face's global uv) so that the own verify
 step can compare the patch with S(phi) evaluated independently.
@@ -41,11 +41,13 @@ step can compare the patch with S(phi) evaluated independently.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import brentq
+from scipy.special import comb
 
 from .core.approx import fit_points
 from .core.bernstein import basis, product, scalar_fn
@@ -1141,14 +1143,20 @@ class _FaceContext:
 
 def _true_degree(c: np.ndarray) -> int:
     """Degree of the polynomial whose Bernstein coefficients are the rows of ``c`` (d+1, k): the
-    highest j whose power coefficient C(d, j) Delta^j c_0 is above rounding."""
+    highest j whose power coefficient C(d, j) Delta^j c_0 is above rounding. All the forward
+    differences at once: one product with the signed binomial matrix (``_differences``)."""
     scale = float(np.abs(c).max()) or 1.0
-    r, diff = 0, c
-    for j in range(1, c.shape[0]):
-        diff = np.diff(diff, axis=0)
-        if np.abs(diff[0]).max() > _COMPACT_DIFF * scale:
-            r = j
-    return r
+    above = np.flatnonzero(np.abs(_differences(c.shape[0] - 1) @ c).max(axis=1) > _COMPACT_DIFF * scale)
+    return int(above[-1]) if len(above) else 0
+
+
+@functools.cache
+def _differences(d: int) -> np.ndarray:
+    """(d+1, d+1): row j holds the coefficients of the j-th forward difference at 0, (-1)^(j-i) C(j, i)."""
+    j, i = np.meshgrid(np.arange(d + 1), np.arange(d + 1), indexing="ij")
+    m = np.where(i <= j, comb(j, i) * (-1.0) ** (j - i), 0.0)
+    m[0] = 0.0  # the degree counts differences from the first on
+    return m
 
 
 def compact(ctrl: np.ndarray, rational: bool) -> np.ndarray:
