@@ -4,6 +4,8 @@ approximation was needed, else within the reported bound) and I5 (degrees, no fo
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -20,6 +22,7 @@ from watertight_cli.untrim import (
     _reduce_side,
     cell_map,
     patch_points,
+    untrim,
 )
 
 from .conftest import corpus_path, fixture_models, fixture_path
@@ -630,3 +633,20 @@ def test_a_face_with_a_pole_turns_when_its_rungs_cannot_take_their_edges():
     assert not fr.problems
     assert _unshared_rungs(fr, RUNG_SLIDE * half.approx_rel * model.diagonal) == 0
     assert len(fr.patches) < 2000
+
+
+def test_a_face_whose_repairs_cost_much_as_is_is_decomposed_turned():
+    """gmsh__917_fusee.stp's face 6: both u-sides wiggle around u = 0 and u = 1 by 3e-5. As is, its
+    flattening repairs cost 1.7e-4 (of a 2.4e-4 tolerance) and made 163 cells along the wiggles,
+    whose rungs stage 2 could not all share (7 free edges once thin slab lines merged there);
+    turned, the face needs no flattening. A face whose repairs exceed the rung slide is tried
+    turned, and kept so when that repairs less than half as much with no more patches."""
+    from watertight_cli.inspect import inspect
+
+    ins = inspect(str(corpus_path("gmsh__917_fusee.stp")), TOL, array_gaps=False)
+    face = replace(ins.model.faces[6], index=0)
+    model = replace(ins.model, faces=[face])
+    tol = TOL.with_(approx_rel=0.5 * TOL.approx_rel)
+    res = untrim(model, tol)
+    assert model.faces[0] is not face  # turned
+    assert res.faces[0].closure < 1e-3 * tol.approx_rel * model.diagonal
