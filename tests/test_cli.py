@@ -142,7 +142,7 @@ def test_convert_untrim_writes_bezier_faces(tmp_path):
     rep = json.loads(result.stdout)
     assert rep["stage"] == "untrim" and rep["verified"] is True
     assert rep["faces_in"] == 1 and rep["patches_out"] == 8
-    assert rep["degree"]["max"] <= 25 and rep["folded_patches"] == 0
+    assert rep["degree"]["max"] <= 25 and rep["folded_patches"] == 0 and rep["thin_patches"] == 0
     assert rep["bound_max"] <= 1e-9 * rep["diagonal"]
     # read back with the kernel: every face is an untrimmed Bezier patch
     from OCP.BRep import BRep_Tool

@@ -650,3 +650,23 @@ def test_a_face_whose_repairs_cost_much_as_is_is_decomposed_turned():
     res = untrim(model, tol)
     assert model.faces[0] is not face  # turned
     assert res.faces[0].closure < 1e-3 * tol.approx_rel * model.diagonal
+
+
+def test_thin_patch_counts_slivers_below_the_tolerance_and_not_pole_triangles():
+    """I5, "no slivers below the tolerance": a patch whose opposite sides stand closer than the
+    tolerance all along while it is long is thin; a square is not, nor a triangle whose collapsed
+    side sits at a pole (its sides meet there, but the patch is as wide as it is long)."""
+    from watertight_cli.verify import thin_patch
+
+    s = np.linspace(0.0, 1.0, 9)
+    S, T = np.meshgrid(s, s, indexing="ij")
+
+    def grid(x, y):
+        return np.stack([x, y, 0.0 * x], axis=-1)
+
+    width = 1e-3
+    assert thin_patch(grid(42.0 * S, 4e-4 * T), width)  # trj8's strip: 4e-4 x 42
+    assert thin_patch(grid(4e-4 * S, 42.0 * T), width)  # the same, turned
+    assert not thin_patch(grid(S, T), width)
+    assert not thin_patch(grid(S * T, T), width)  # a triangle: its side s = 0 collapsed at the pole
+    assert not thin_patch(grid(5e-3 * S, 4e-4 * T), width)  # small, but not long: not a sliver

@@ -185,6 +185,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
             "area_out": fc.area_out,
             "folded_patches": fc.folded,
             "collapsed_rungs": fc.collapsed_rungs,
+            "thin_patches": fc.thin,
             "problems": fc.problems,
         })
     return {
@@ -209,6 +210,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
         "deviation_max_sampled": max((c.deviation for c in check.faces), default=0.0),
         "folded_patches": sum(c.folded for c in check.faces),
         "collapsed_rungs": sum(c.collapsed_rungs for c in check.faces),
+        "thin_patches": sum(c.thin for c in check.faces),
         "verified": check.ok,
         "faces": faces,
     }
@@ -223,6 +225,7 @@ def format_untrim_table(rep: dict) -> str:
         f"  deviation: bound {rep['bound_max']:.3g} ({rep['bound_max'] / d:.2g} of the diagonal), sampled "
         f"{rep['deviation_max_sampled']:.3g}; tolerance {rep['tolerance']:.3g}",
         f"  folded patches {rep['folded_patches']}, collapsed rungs {rep['collapsed_rungs']}, "
+        f"thin patches {rep['thin_patches']}, "
         f"verified {'yes' if rep['verified'] else 'NO'}",
         "  time: " + ", ".join(f"{k} {v:.1f}s" for k, v in rep["timings"].items()),
     ]
