@@ -145,6 +145,7 @@ class FaceResult:
     folds: int = 0
     local_cuts: int = 0
     closure: float = 0.0  # deviation bound of closing the loops' uv gaps and snapping (model units)
+    flattened: float = 0.0  # the part of ``closure`` spent on flattening near-iso pcurves (_flatten)
     snapped: int = 0  # pieces treated as iso-lines though they wiggle (by less than the snap)
     slivers: int = 0  # pieces narrower than a sliver (Tolerances.sliver_rel) left on a slab line
     problems: list[str] = field(default_factory=list)
@@ -1471,6 +1472,7 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     pieces, move, flat = _face_pieces(face, model, plan, g, _FLATTEN * tol.approx_rel * model.diagonal,
                                       tol.watertight_rel * model.diagonal)
     fr.closure = move + flat
+    fr.flattened = flat
     fr.approximated = bool(flat > g.snap)
     reparam = 0.0
     for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts):
@@ -1499,9 +1501,9 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
 #: a turned face may have at most this many times the patches of the face as is plus one per rung
 #: piece the turn lets take its edge's curve (``untrim``)
 _TURN_GROWTH = 2.0
-#: a face whose repairs (``FaceResult.closure``) exceed this many rung slides (``RUNG_SLIDE`` of the
-#: tolerance) is decomposed turned as well, and kept turned when that repairs less than half as
-#: much with no more patches and no more unshared rungs (``untrim``)
+#: a face whose flattening (``FaceResult.flattened``) costs more than this many rung slides
+#: (``RUNG_SLIDE`` of the tolerance) is decomposed turned as well, and kept turned when that
+#: flattens less than half as much with no more patches and no more unshared rungs (``untrim``)
 _TURN_REPAIRS = 1.0
 
 
@@ -1565,11 +1567,11 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
         # cells as is (119 rungs unshared, most of the wing's free edges) and 986 turned (none)
         fixed = any(model.edges[ce.edge].seam for lp in face.loops for ce in lp.coedges)
         left = 0 if fixed or fr.problems else _unshared_rungs(fr, slide)
-        # a face whose repairs cost much as is (flattened wiggly near-iso pcurves) is tried turned
-        # too: fusee's face 6, whose two u-sides wiggle around u = 0 and u = 1 by 3e-5, spent 1.7e-4
-        # on repairs as is, in 163 cells along the wiggles whose rungs stage 2 could not all share
-        # (kept as is, 7 free edges), and 4.7e-8 turned, in 67
-        costly = fr.closure > _TURN_REPAIRS * slide
+        # a face whose flattening costs much as is (wiggly near-iso pcurves) is tried turned too:
+        # fusee's face 6, whose two u-sides wiggle around u = 0 and u = 1 by 3e-5, spent 1.7e-4 on
+        # flattening as is, in 163 cells along the wiggles whose rungs stage 2 could not all share
+        # (kept as is, 7 free edges), and none turned, in 67. Loop closing costs the same both ways
+        costly = fr.flattened > _TURN_REPAIRS * slide
         if not fixed and (fr.problems or left or costly):
             turned = transpose_face(face)
             gt = _FaceGeometry(turned, model.diagonal, tol)
@@ -1581,7 +1583,7 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
                 # by 2e-5 in v were flattened onto iso-lines (a 7e-4 move), left unshared as rungs
                 # at that distance from their edge (bug33398: a 1.35e-3 gap)
                 repairs = frt.closure <= fr.closure + 0.1 * slide
-                cheaper = (costly and left_t <= left and frt.closure < 0.5 * fr.closure
+                cheaper = (costly and left_t <= left and frt.flattened < 0.5 * fr.flattened
                            and len(frt.patches) <= len(fr.patches))
                 if fr.problems or ((left_t < left or cheaper) and repairs and len(frt.patches) <= room):
                     model.faces[i], fr = turned, frt
