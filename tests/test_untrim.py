@@ -445,23 +445,25 @@ def test_a_turning_end_pins_its_slab_line():
     """An end where both pieces leave to one side (a u-extremum of the loop) keeps its line: the
     cell beyond would run straight past it and leave a thin triangle uncovered. So does a piece
     that joins two lines of a group (it would become an iso piece), through ``links``."""
-    from watertight_cli.untrim import _Piece, _thin_merge_rules
+    from watertight_cli.untrim import _nearest, _Piece, _thin_merge_rules
 
     lines = np.array([0.0, 0.5, 0.5 + 1e-7, 1.0])
 
     def piece(a, b):
         return _Piece(np.array([[*a, 1.0], [*b, 1.0]]), 0, 0.0, 1.0, False)
 
+    def rules(*pieces):
+        at = [(_nearest(lines, float(p.H[0, 0])), _nearest(lines, float(p.H[-1, 0]))) for p in pieces]
+        return _thin_merge_rules(lines, list(pieces), at, set())
+
     # (0.5 + 1e-7, 0.5) turns: both of its pieces run to the left
-    links, pinned = _thin_merge_rules(lines, [piece((0, 0.2), (0.5 + 1e-7, 0.5)),
-                                              piece((0.5 + 1e-7, 0.5), (0, 0.8))], set())
+    links, pinned = rules(piece((0, 0.2), (0.5 + 1e-7, 0.5)), piece((0.5 + 1e-7, 0.5), (0, 0.8)))
     assert 2 in pinned
     # (0.5, 0.3) is passed through: line 1 stays free (the open ends pin lines 0 and 3)
-    links, pinned = _thin_merge_rules(lines, [piece((0, 0.3), (0.5, 0.3)), piece((0.5, 0.3), (1, 0.3))],
-                                      set())
+    links, pinned = rules(piece((0, 0.3), (0.5, 0.3)), piece((0.5, 0.3), (1, 0.3)))
     assert pinned == {0, 3}
     # a piece from line 1 to line 2
-    links, _ = _thin_merge_rules(lines, [piece((0.5, 0.6), (0.5 + 1e-7, 0.6))], set())
+    links, _ = rules(piece((0.5, 0.6), (0.5 + 1e-7, 0.6)))
     assert links == {2: 1}
 
 

@@ -540,7 +540,8 @@ def _merge_thin(lines: np.ndarray, exact: set[float], face: Face, g: _FaceGeomet
     return np.array(out), np.array(index)
 
 
-def _thin_merge_rules(lines: np.ndarray, pieces: list[_Piece], knots: set[float]) -> tuple[dict, set]:
+def _thin_merge_rules(lines: np.ndarray, pieces: list[_Piece], at: list[tuple[int, int]],
+                      knots: set[float]) -> tuple[dict, set]:
     """What keeps slab lines from merging beyond a sliver (``_merge_thin``).
 
     A merged line passes through the ends on it, bent by up to ``Tolerances.thin_rel``; the cells
@@ -550,12 +551,12 @@ def _thin_merge_rules(lines: np.ndarray, pieces: list[_Piece], knots: set[float]
     side's cell would run straight past it, a thin triangle uncovered), an iso piece (it would be
     left off the line), or a knot line (cells must stay within one span) are ``pinned``. A piece
     running from one line of a group to another would become an iso piece: ``links`` maps each
-    line to the highest lower line that a piece joins it to."""
+    line to the highest lower line that a piece joins it to. ``at``: per piece, the lines of its
+    first and last end."""
     links: dict[int, int] = {}
     pinned = {k for k, x in enumerate(lines) if float(x) in knots}
     sides: dict[tuple[float, float], list[int]] = {}
-    for p in pieces:
-        i, j = (_nearest(lines, float(p.H[k, 0] / p.H[k, 2])) for k in (0, -1))
+    for p, (i, j) in zip(pieces, at, strict=True):
         if i == j:
             pinned.add(i)
             continue
@@ -586,15 +587,19 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     lo, hi = float(ends_uv[:, 0].min()), float(ends_uv[:, 0].max())
     inner_u = [float(x) for x in ub[1:-1] if lo + ueps < x < hi - ueps]
     ends = _ends_onto_knots(ends_uv, inner_u, face, g)
-    first = _cluster(ends + inner_u, set(inner_u), ueps)
-    lines, index = _merge_thin(first, set(inner_u), face, g, *_thin_merge_rules(first, pieces, set(inner_u)))
+    knots = set(inner_u)
+    first = _cluster(ends + inner_u, knots, ueps)
+    # every end was clustered into a line: a piece runs from its first end's line to its last
+    # end's line, so one rule decides both the lines and which pieces lie on a line
+    at = [(_nearest(first, float(p.H[0, 0] / p.H[0, 2])), _nearest(first, float(p.H[-1, 0] / p.H[-1, 2])))
+          for p in pieces]
+    lines, index = _merge_thin(first, knots, face, g, *_thin_merge_rules(first, pieces, at, knots))
     slabs: list[list[_Piece]] = [[] for _ in range(len(lines) - 1)]
-    for p in pieces:
+    for p, ends_at in zip(pieces, at, strict=True):
         p = _orient_u(p)
         a, b = p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2]
-        # every end was clustered into a line: a piece runs from its first end's line to its last
-        # end's line, so one rule decides both the lines and which pieces lie on a line
-        i, j = index[_nearest(first, a)], index[_nearest(first, b)]
+        # oriented with u increasing, the piece runs from the lower of its two lines
+        i, j = int(index[min(ends_at)]), int(index[max(ends_at)])
         if i == j:
             fr.iso_pieces.append(p)
             if b - a > g.ueps:
