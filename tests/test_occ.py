@@ -184,3 +184,45 @@ def test_input_never_modified(tol, tmp_path):
 def test_missing_input_raises_domain_error(tmp_path, tol):
     with pytest.raises(InputError, match="no such file"):
         inspect(str(tmp_path / "x.stp"), tol)
+
+
+def test_an_edge_off_its_side_within_tolerance_reads_back_untrimmed(tmp_path, tol):
+    """An edge whose 3D curve bows 3e-7 off its face's side (its tolerance covers that) keeps the
+    side's straight pcurve through a write and a read: the file declares the largest vertex
+    tolerance as its uncertainty. With OCCT's default (1e-7) the reader projected fusee's 3D curve
+    at a cusp again, the new pcurve left [0, 1]^2 by 2.4e-8 and the face read back trimmed. This
+    small case reads back untrimmed either way (the projection lands on the side), so the figure
+    written is checked too."""
+    from OCP.BRep import BRep_Builder, BRep_Tool
+    from OCP.Geom import Geom_BezierCurve
+    from OCP.gp import gp_Pnt
+    from OCP.TColgp import TColgp_Array1OfPnt
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_VERTEX
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from watertight_cli.occ.build import patch_face
+    from watertight_cli.occ.io import write_shape
+
+    u, v = np.meshgrid(np.linspace(0, 10, 3), np.linspace(0, 10, 3), indexing="ij")
+    face = patch_face(np.stack([u, v, 0.01 * u * v], axis=-1), False, False)
+    B = BRep_Builder()
+    ex = TopExp_Explorer(face, TopAbs_EDGE)
+    while ex.More():  # bow the side u = 0 (x = 0) outwards in the face's plane, ends kept
+        edge = TopoDS.Edge_s(ex.Current())
+        curve = BRep_Tool.Curve_s(edge, 0.0, 0.0)
+        if abs(curve.Value(0.0).X()) < 1e-12 and abs(curve.Value(1.0).X()) < 1e-12:
+            poles = TColgp_Array1OfPnt(1, 3)
+            for i, (a, b) in enumerate(((0.0, 0.0), (-6e-7, 5.0), (0.0, 10.0))):
+                poles.SetValue(i + 1, gp_Pnt(a, b, 0.0))
+            B.UpdateEdge(edge, Geom_BezierCurve(poles), 4e-7)
+            vx = TopExp_Explorer(edge, TopAbs_VERTEX)
+            while vx.More():
+                B.UpdateVertex(TopoDS.Vertex_s(vx.Current()), 4e-7)
+                vx.Next()
+        ex.Next()
+    write_shape(face, tmp_path / "f.step")
+    back = inspect(str(tmp_path / "f.step"), tol, array_gaps=False, kernel_tracks=False)
+    assert len(back.model.faces) == 1
+    assert not trimmed(back.model.faces[0]), back.model.faces[0].uv_bounds
+    assert b"LENGTH_MEASURE(4.E-07)" in (tmp_path / "f.step").read_bytes()
