@@ -15,6 +15,8 @@ from __future__ import annotations
 import time
 from collections import Counter
 
+import numpy as np
+
 from .tolerances import Tolerances
 
 
@@ -166,18 +168,22 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
     (``core.triangle.quad_from_triangle``) when it fits within half the tolerance: with a collapsed
     side the B-rep has a degenerated edge, and no tessellation of it is closed. The fit's deviation
     is added to its face's. The build puts a remade patch back where it leaves a side free."""
-    from .core.triangle import collapsed_side, quad_from_triangle
+    from .core.triangle import collapsed_side, opposite_row, quad_from_triangle
     from .topology import JOIN_REL
 
     eps, budget = JOIN_REL * diagonal, 0.5 * tol.approx_rel * diagonal
     info = {"remade": 0, "kept": 0, "deviation_max": 0.0, "per_face": {}}
     nets = []
+    corners = None
     for fr in result.faces:
         face = []
         for p in fr.patches:
             quad = None
             if collapsed_side(p.ctrl, eps) is not None:
-                quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree)
+                if corners is None:
+                    corners = _Corners(result)
+                split = corners.split(opposite_row(p.ctrl, p.rational, eps), eps)
+                quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree, split)
                 info["kept"] += quad is None
             if quad is None:
                 face.append((p.ctrl, p.rational, None))
@@ -188,6 +194,39 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
             face.append((quad[0], quad[1], (p.ctrl, p.rational)))
         nets.append(face)
     return nets, info
+
+
+class _Corners:
+    """Every patch corner of a stage-1 result, for ``_untriangle`` to find where a neighbour's corner
+    stands on a triangle's side: the remade patch's new corner goes there, so that its two half
+    sides are exactly the pieces the neighbours share. At their sides' parametric middle instead,
+    Block's remade corners stood 4e-9 off the neighbours' (the neighbours met at 0.50000001 of
+    the side), and the halves missed their neighbours' sides by 4.3e-9, beyond I2."""
+
+    def __init__(self, result):
+        from scipy.spatial import cKDTree
+
+        pts = [p.ctrl[[0, -1, -1, 0], [0, 0, -1, -1]] for fr in result.faces for p in fr.patches]
+        pts = [c[:, :3] / c[:, 3:4] if c.shape[1] == 4 else c for c in pts]
+        self.points = np.concatenate(pts) if pts else np.zeros((0, 3))
+        self.tree = cKDTree(self.points)
+
+    def split(self, row, eps: float, lo: float = 0.2, hi: float = 0.8) -> float:
+        """The parameter on the side ``row`` (homogeneous) of the corner within ``eps`` of it that
+        stands nearest its middle, between ``lo`` and ``hi``; 0.5 when there is none."""
+        from .core.bezier import rational_curve_eval
+        from .topology import project
+
+        if row is None or not len(self.points):
+            return 0.5
+        c = rational_curve_eval(row, np.linspace(0.0, 1.0, 17))
+        reach = float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum())
+        near = self.tree.query_ball_point(c[8], 0.5 * reach + eps)
+        if not near:
+            return 0.5
+        s, d = project(row, self.points[near])
+        ok = (d <= eps) & (s > lo) & (s < hi)
+        return float(s[ok][np.argmin(np.abs(s[ok] - 0.5))]) if ok.any() else 0.5
 
 
 def _local_input_gaps(model, gaps, tol: Tolerances) -> dict[int, float]:

@@ -146,3 +146,30 @@ def test_the_domain_map_sends_the_sides_where_they_belong():
     assert np.allclose(np.stack(domain_map(o, g)), np.stack([o, g / 2]))
     assert np.allclose(np.stack(domain_map(g, o)), np.stack([o, 1 - g / 2]))
     assert np.allclose(np.stack(domain_map(z[1:], g[1:])), np.stack([g[1:], o[1:]]))
+
+
+@given(st.floats(0.2, 0.8))
+def test_the_domain_map_sends_the_sides_where_they_belong_at_any_split(c):
+    g = np.linspace(0.0, 1.0, 11)
+    z, o = np.zeros_like(g), np.ones_like(g)
+    assert np.allclose(np.stack(domain_map(g, z, c)), np.stack([g, z]))
+    assert np.allclose(np.stack(domain_map(o, g, c)), np.stack([o, c * g]))
+    assert np.allclose(np.stack(domain_map(g, o, c)), np.stack([o, 1 - (1 - c) * g]))
+    assert np.allclose(np.stack(domain_map(z[1:], g[1:], c)), np.stack([g[1:], o[1:]]))
+
+
+def test_the_new_corner_can_stand_where_a_neighbour_splits_the_side():
+    """Block: two neighbours met on a triangle's side at 0.50000001 of it; Q's corner at the side's
+    parametric middle left Q's halves 4.3e-9 off their sides, beyond I2's 1e-12 x diagonal."""
+    from watertight_cli.core.triangle import opposite_row
+
+    P = _triangle(4, 2, 0.3, 0.9)
+    row = opposite_row(P, False, EPS)
+    assert np.allclose(row[:, :3], P[-1, :]) and np.all(row[:, 3] == 1.0)
+    Q, _, dev = quad_from_triangle(P, False, EPS, 1e-3, split=0.37)
+    assert dev <= 1e-3
+    lower, upper = curve_split(P[-1, :], 0.37)
+    g = np.linspace(0.0, 1.0, 9)
+    right, top = surface_eval_grid(Q, [1.0], g)[0], surface_eval_grid(Q, g, [1.0])[:, 0]
+    assert np.allclose(right, surface_eval_grid(lower[None], [0.0], g)[0], atol=1e-13)
+    assert np.allclose(top, surface_eval_grid(upper[::-1][None], [0.0], g)[0], atol=1e-13)

@@ -65,15 +65,28 @@ def collapsed_side(ctrl: np.ndarray, eps: float) -> int | None:
     return found[0] if len(found) == 1 else None
 
 
-def domain_map(sigma: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The map m from Q's square onto P's triangle (broadcast over sigma, tau). On Q's sides:
-    m(σ, 0) = (σ, 0), m(0, τ) = (τ, 1), m(1, τ) = (1, τ / 2), m(σ, 1) = (1, 1 - σ / 2); near
-    Q's corner (0, 0) the angle τ / (σ + τ) picks the direction out of A. Orientation preserving."""
+def domain_map(sigma: np.ndarray, tau: np.ndarray, split: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """The map m from Q's square onto P's triangle (broadcast over sigma, tau). On Q's sides, with
+    c = ``split``: m(σ, 0) = (σ, 0), m(0, τ) = (τ, 1), m(1, τ) = (1, c τ), m(σ, 1) = (1, 1 - (1 - c) σ);
+    near Q's corner (0, 0) the angle τ / (σ + τ) picks the direction out of A. t blends the
+    angle's errors along Q's sides σ = 1 and τ = 1 (a transfinite correction, which the corner
+    (1, 1) term keeps consistent; it is zero at c = 1/2). Orientation preserving."""
     s = 1.0 - (1.0 - sigma) * (1.0 - tau)
     total = sigma + tau
     g = np.where(total > 0.0, tau / np.where(total > 0.0, total, 1.0), 0.0)
-    t = g + sigma * (tau / 2.0 - tau / (1.0 + tau)) + tau * (1.0 - sigma / 2.0 - 1.0 / (1.0 + sigma))
+    on_right = split * tau - tau / (1.0 + tau)  # target minus the angle on σ = 1
+    on_top = 1.0 - (1.0 - split) * sigma - 1.0 / (1.0 + sigma)  # the same on τ = 1
+    t = g + sigma * on_right + tau * on_top - sigma * tau * (split - 0.5)
     return s, np.clip(t, 0.0, 1.0)
+
+
+def opposite_row(ctrl: np.ndarray, rational: bool, eps: float) -> np.ndarray | None:
+    """The side facing a net's one collapsed side, as the homogeneous row that ``quad_from_triangle``
+    splits (running from B to C); None unless exactly one side is collapsed."""
+    k = collapsed_side(ctrl, eps)
+    if k is None:
+        return None
+    return np.rot90(_homogeneous(ctrl, rational), k)[-1, :].copy()
 
 
 def _homogeneous(ctrl: np.ndarray, rational: bool) -> np.ndarray:
@@ -88,11 +101,12 @@ def _pairs(bs: np.ndarray, H: np.ndarray, bt: np.ndarray) -> np.ndarray:
     return np.einsum("kjd,kj->kd", rows, bt)
 
 
-def _boundary(P: np.ndarray, n: int) -> np.ndarray:
+def _boundary(P: np.ndarray, n: int, split: float = 0.5) -> np.ndarray:
     """Q's net of degree (n, n) with its boundary rows set (inner points zero), from P
-    (homogeneous, collapsed at s = 0); None where the weights cannot be made to agree at A."""
+    (homogeneous, collapsed at s = 0), its corner M at ``split`` on P's right side; None where the
+    weights cannot be made to agree at A."""
     bottom, right, top = P[:, 0], P[-1, :], P[:, -1]
-    lower, upper = curve_split(right, 0.5)
+    lower, upper = curve_split(right, split)
     wb, wt = bottom[0, 3], top[0, 3]
     if wb <= 0.0 or wt <= 0.0:
         return None
@@ -124,12 +138,14 @@ def _coons(w: np.ndarray) -> np.ndarray:
 
 
 def quad_from_triangle(ctrl: np.ndarray, rational: bool, eps: float, budget: float,
-                       max_degree: int = 25) -> tuple[np.ndarray, bool, float] | None:
+                       max_degree: int = 25, split: float = 0.5) -> tuple[np.ndarray, bool, float] | None:
     """Q for a patch with exactly one collapsed side (within ``eps``): (ctrl, rational, deviation)
     with the net in the input's orientation (same loop direction and normal), its degree the
     lowest from max(P's degrees) up to ``_RAISE`` more (and ``max_degree``) whose sampled
     deviation from P is at most ``budget``; None for any other patch, or when no degree fits,
-    the fit folds or its net blows up."""
+    the fit folds or its net blows up. Q's new corner M lies at ``split`` on the side facing the
+    collapsed one (``opposite_row``'s parameter): where a neighbour's corner already stands on that
+    side, M there keeps Q's two half sides the very pieces the neighbours share."""
     k = collapsed_side(ctrl, eps)
     if k is None:
         return None
@@ -138,7 +154,7 @@ def quad_from_triangle(ctrl: np.ndarray, rational: bool, eps: float, budget: flo
     for n in range(max(start, 2), min(max(start, 2) + _RAISE, max_degree) + 1):
         fitted = None
         for project in (False, True):
-            tried = _fit(P, n, budget, project)
+            tried = _fit(P, n, budget, project, split)
             if tried is not None and (fitted is None or tried[1] < fitted[1]):
                 fitted = tried
             if fitted is not None and fitted[1] <= budget:
@@ -156,8 +172,8 @@ def quad_from_triangle(ctrl: np.ndarray, rational: bool, eps: float, budget: flo
     return None
 
 
-def _fit(P: np.ndarray, n: int, budget: float = 0.0,
-         project: bool = False) -> tuple[np.ndarray, float] | None:
+def _fit(P: np.ndarray, n: int, budget: float = 0.0, project: bool = False,
+         split: float = 0.5) -> tuple[np.ndarray, float] | None:
     """Q of degree (n, n) fitted to P, and its sampled two-sided deviation (that of the coarse
     check alone when it exceeds ``budget``); None when the weights or the fit fail.
 
@@ -167,7 +183,7 @@ def _fit(P: np.ndarray, n: int, budget: float = 0.0,
     triangle's angle at A is wide, P∘m is a function no polynomial follows (a sphere's quarter
     at its pole, degree 11: 4.8e-3 off). The Coons patch is smooth there, and its foot points
     give P a smooth parameterization near A (the same quarter: 2.0e-5)."""
-    Q = _boundary(P, n)
+    Q = _boundary(P, n, split)
     if Q is None:
         return None
     w = _coons(Q[..., 3])
@@ -177,7 +193,7 @@ def _fit(P: np.ndarray, n: int, budget: float = 0.0,
     g = np.linspace(0.0, 1.0, _FIT_PER_DEGREE * n + 1)
     sg, tg = np.meshgrid(g, g, indexing="ij")
     sg, tg = sg.ravel(), tg.ravel()
-    ms, mt = domain_map(sg, tg)
+    ms, mt = domain_map(sg, tg, split)
     blend = _coons(Q[..., :3])  # of the boundary rows (homogeneous points): a guess and a pull
     if project:
         coons = Q.copy()
@@ -212,19 +228,19 @@ def _fit(P: np.ndarray, n: int, budget: float = 0.0,
     # check on an offset grid: a coarse one first, whose deviation (a lower bound of the fine
     # grid's) already rejects most fits that miss the budget, then the fine one
     for per in (1, _CHECK_PER_DEGREE):
-        dev = _two_sided(P, Q, per * n)
+        dev = _two_sided(P, Q, per * n, split)
         if dev > budget:
             break
     return Q, dev
 
 
-def _two_sided(P: np.ndarray, Q: np.ndarray, k: int) -> float:
+def _two_sided(P: np.ndarray, Q: np.ndarray, k: int, split: float = 0.5) -> float:
     """Largest distance of Q's samples to P (from their mapped parameters) and of P's samples to Q,
     on a k x k grid of cell centres plus the square's sides."""
     c = np.concatenate([[0.0], (np.arange(k) + 0.5) / k, [1.0]])
     sc, tc = np.meshgrid(c, c, indexing="ij")
     sc, tc = sc.ravel(), tc.ravel()
-    ms, mt = domain_map(sc, tc)
+    ms, mt = domain_map(sc, tc, split)
     on_q, on_p = rational_surface_eval(Q, sc, tc), rational_surface_eval(P, ms, mt)
     return max(float(_foot(P, on_q, ms, mt)[2].max()), float(_foot(Q, on_p, sc, tc)[2].max()))
 
