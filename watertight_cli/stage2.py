@@ -131,8 +131,10 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "lenses_remade": joined["lenses"],
             "fold_width_max": joined["fold_width_max"],
             # patches with one collapsed side, made again with four (``core.triangle``), those
-            # kept (no fit within the budget), and the largest two-sided distance of a new one
+            # kept (no fit within the budget), and the largest two-sided distance of a new one;
+            # ``triangles_tips_cut``: of those remade, the ones made again at their tip alone
             "triangles_remade": quads["remade"],
+            "triangles_tips_cut": quads["tips"],
             "triangles_kept": quads["kept"],
             "triangles_reverted": joined["triangles_reverted"],
             "triangle_deviation_max": quads["deviation_max"],
@@ -166,32 +168,43 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
     """Per face, its patches as (ctrl, rational, the triangle's own net or None) for the build,
     where each patch with exactly one collapsed side is made again as a four-sided patch
     (``core.triangle.quad_from_triangle``) when it fits within half the tolerance: with a collapsed
-    side the B-rep has a degenerated edge, and no tessellation of it is closed. The fit's deviation
-    is added to its face's. The build puts a remade patch back where it leaves a side free."""
-    from .core.triangle import collapsed_side, opposite_row, quad_from_triangle
+    side the B-rep has a degenerated edge, and no tessellation of it is closed. Where the whole
+    triangle misses, its tip is cut off and made again alone, the rest kept exactly
+    (``quad_from_tip``). The fit's deviation is added to its face's. The build puts a remade patch
+    back (the whole triangle, or the tip) where it leaves a side free."""
+    from .core.triangle import collapsed_side, opposite_row, quad_from_tip, quad_from_triangle
     from .topology import JOIN_REL
 
     eps, budget = JOIN_REL * diagonal, 0.5 * tol.approx_rel * diagonal
-    info = {"remade": 0, "kept": 0, "deviation_max": 0.0, "per_face": {}}
+    info = {"remade": 0, "kept": 0, "tips": 0, "deviation_max": 0.0, "per_face": {}}
     nets = []
     corners = None
     for fr in result.faces:
         face = []
         for p in fr.patches:
-            quad = None
-            if collapsed_side(p.ctrl, eps) is not None:
-                if corners is None:
-                    corners = _Corners(result)
-                split = corners.split(opposite_row(p.ctrl, p.rational, eps), eps)
-                quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree, split)
-                info["kept"] += quad is None
-            if quad is None:
+            if collapsed_side(p.ctrl, eps) is None:
                 face.append((p.ctrl, p.rational, None))
                 continue
-            info["remade"] += 1
-            info["deviation_max"] = max(info["deviation_max"], quad[2])
-            info["per_face"][fr.face] = max(info["per_face"].get(fr.face, 0.0), quad[2])
-            face.append((quad[0], quad[1], (p.ctrl, p.rational)))
+            if corners is None:
+                corners = _Corners(result)
+            split = corners.split(opposite_row(p.ctrl, p.rational, eps), eps)
+            quad = quad_from_triangle(p.ctrl, p.rational, eps, budget, tol.max_degree, split)
+            made = [(quad, (p.ctrl, p.rational))] if quad is not None else []
+            if quad is None:
+                cut = quad_from_tip(p.ctrl, p.rational, eps, budget, tol.max_degree)
+                if cut is not None:
+                    info["tips"] += 1
+                    made = [(cut[0], (cut[1], p.rational))]
+                    face.append((cut[2], p.rational, None))
+            if not made:
+                info["kept"] += 1
+                face.append((p.ctrl, p.rational, None))
+                continue
+            for (ctrl, rational, dev), was in made:
+                info["remade"] += 1
+                info["deviation_max"] = max(info["deviation_max"], dev)
+                info["per_face"][fr.face] = max(info["per_face"].get(fr.face, 0.0), dev)
+                face.append((ctrl, rational, was))
         nets.append(face)
     return nets, info
 

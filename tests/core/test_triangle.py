@@ -173,3 +173,34 @@ def test_the_new_corner_can_stand_where_a_neighbour_splits_the_side():
     right, top = surface_eval_grid(Q, [1.0], g)[0], surface_eval_grid(Q, g, [1.0])[:, 0]
     assert np.allclose(right, surface_eval_grid(lower[None], [0.0], g)[0], atol=1e-13)
     assert np.allclose(top, surface_eval_grid(upper[::-1][None], [0.0], g)[0], atol=1e-13)
+
+
+def test_a_triangle_that_misses_as_a_whole_is_made_again_at_its_tip():
+    """A curved triangle whose whole fit misses a tight budget: its tip is cut off and fitted
+    alone, the rest kept exactly; the two cover the triangle (same corners and cut row)."""
+    from watertight_cli.core.bezier import curve_split
+    from watertight_cli.core.triangle import quad_from_tip
+
+    P = _triangle(4, 3, 0.8, 1.0)
+    whole = quad_from_triangle(P, False, EPS, 1e-9)
+    assert whole is None  # the budget is too tight for the whole triangle
+    budget = 1e-3
+    full = quad_from_triangle(P, False, EPS, 1e9)
+    cut = quad_from_tip(P, False, EPS, budget)
+    assert cut is not None
+    (Q, rational, dev), tip, rest = cut
+    assert not rational and dev <= budget and dev < full[2]
+    assert collapsed_side(Q, 1e-9) is None and collapsed_side(tip, EPS) == 0
+    c = None
+    for c in (0.5, 0.25, 0.125):
+        a, b = curve_split(P, c)
+        if np.allclose(a, tip, atol=1e-15):
+            break
+    assert np.allclose(curve_split(P, c)[1], rest, atol=1e-15)
+    # the tip's new patch ends on the cut row: its corners B and C are the row's ends, M its middle
+    from watertight_cli.core.bezier import curve_eval
+
+    corners = surface_eval_grid(Q, [0.0, 1.0], [0.0, 1.0])
+    assert np.allclose(corners[1, 0], rest[0, 0], atol=1e-13)
+    assert np.allclose(corners[0, 1], rest[0, -1], atol=1e-13)
+    assert np.allclose(corners[1, 1], curve_eval(rest[0], [0.5])[0], atol=1e-13)
