@@ -115,6 +115,28 @@ def test_ruled_cell_under_a_cubic_trim_is_exact():
     assert np.max(np.abs(patch_points(p, s, s) - ref)) < 1e-13
 
 
+def test_an_inverted_approximated_cell_is_reported_once_not_halved():
+    """A cell over the degree budget whose top runs below its bottom all along: both halves of it
+    are inverted again, so it is reported at once. Halving it down to the deepest split made 2^14
+    cells (ec_turbine's face 33 with plan rung cuts, 27 s of a 63 s conversion)."""
+    _, P = _square_surface()
+    ctx = _FaceContext.__new__(_FaceContext)
+    ctx.face = type("F", (), {"index": 0})()
+    ctx.rational, ctx.m, ctx.n = False, 3, 3
+    ctx.ub = ctx.vb = np.array([0.0, 1.0])
+    ctx.spans = P[None, None]
+    ctx.tol, ctx.max_degree = 1.0, 6  # the cubic side composes to degree 18: approximated
+    bottom = Side(np.array([[0.0, 0.6, 1.0], [1.0, 0.6, 1.0]]), True)
+    low = np.array([[0.0, 0.1, 1.0], [0.3, 0.3, 1.0], [0.7, 0.1, 1.0], [1.0, 0.2, 1.0]])
+    top = Side(low, False, edge=1, w0=0.0, w1=1.0)
+    from watertight_cli.untrim import FaceResult
+
+    fr = FaceResult(0)
+    patches = ctx.cell_patches(0.0, 1.0, bottom, top, fr)
+    assert len(patches) == 1
+    assert fr.folds == 1 and len(fr.problems) == 1 and "inverted" in fr.problems[0]
+
+
 # --------------------------------------------------------------------------- fixtures, pipeline
 
 

@@ -1059,6 +1059,15 @@ class _FaceContext:
                 return False
         return True
 
+    def _inverted(self, ua: float, ubb: float, bot: Side, top: Side) -> bool:
+        """The top below the bottom (in v) at every u of the cell's samples."""
+        for u in np.linspace(ua, ubb, 9):
+            vb = _eval(bot.H, _t_at_u(bot.H, float(u)))[0, 1]
+            vt = _eval(top.H, _t_at_u(top.H, float(u)))[0, 1]
+            if vt >= vb:
+                return False
+        return True
+
     def _follow(self, E: Side, bot: Side, top: Side, P, frame) -> Patch | None:
         """A cell between two v-iso lines where one side is an edge whose parameter is not affine in
         u: phi(s, t) = ((1 - t) u_B(s) + t u_T(s), (1 - t) c0 + t c1), where the edge side keeps its
@@ -1117,11 +1126,15 @@ class _FaceContext:
                 return self._halve(ua, ubb, bot, top, fr, depth)
         U, V, W = _map_grids(*sides)
         det = _phi_jacobian(U, V, W)
-        if not np.all(det > 0) and depth < _MAX_SPLIT_DEPTH:
+        # a cell whose top runs below its bottom all along stays so in both halves: halving it to
+        # the deepest split made 2^14 inverted cells (ec_turbine face 33 with plan rung cuts, 27 s)
+        inverted = bool(np.all(det < 0)) and self._inverted(ua, ubb, bot, top)
+        if not np.all(det > 0) and depth < _MAX_SPLIT_DEPTH and not inverted:
             return self._halve(ua, ubb, bot, top, fr, depth)
         if not np.all(det > 0):
             fr.folds += 1
-            fr.problems.append(f"a folded approximated cell near u = {0.5 * (ua + ubb):.6g}")
+            what = "an inverted (top below bottom)" if inverted else "a folded"
+            fr.problems.append(f"{what} approximated cell near u = {0.5 * (ua + ubb):.6g}")
         ctrl, rational = self._compose(Qr, U, V, W)
         return [Patch(self.face.index, ctrl, rational, bot, top, total, est or pest, True)]
 
