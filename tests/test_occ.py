@@ -226,3 +226,21 @@ def test_an_edge_off_its_side_within_tolerance_reads_back_untrimmed(tmp_path, to
     assert len(back.model.faces) == 1
     assert not trimmed(back.model.faces[0]), back.model.faces[0].uv_bounds
     assert b"LENGTH_MEASURE(4.E-07)" in (tmp_path / "f.step").read_bytes()
+
+
+def test_a_read_without_healing_reads_the_file_as_written_and_leaves_later_reads_healed(tol):
+    """``heal=False`` (the read-back of a written file) switches the STEP reader's shape healing
+    off: sphere_cut_box.step, which healing changes (it adds two edges and moves the largest gap
+    from 5.3e-8 to 2.3e-6), reads as written. A healed read after it is the same as before it (the
+    IGES reader's healing parameters outlive the reader, so IGES keeps healing either way)."""
+
+    def measured(path, heal=True):
+        ins = inspect(str(path), tol, array_gaps=False, kernel_tracks=False, heal=heal)
+        return len(ins.model.edges), max(g.gap for g in ins.gaps)
+
+    step, iges = fixture_path("sphere_cut_box.step"), fixture_path("loft_minus_cylinder.igs")
+    healed, healed_iges = measured(step), measured(iges)
+    raw = measured(step, heal=False)
+    assert raw[0] < healed[0] and raw[1] < healed[1] / 10, (raw, healed)
+    assert measured(iges, heal=False) == healed_iges
+    assert measured(step) == healed and measured(iges) == healed_iges

@@ -46,19 +46,21 @@ class _Clock:
         self._t = now
 
 
-def inspect(path: str, tol: Tolerances, array_gaps: bool = True, kernel_tracks: bool = True) -> Inspection:
+def inspect(path: str, tol: Tolerances, array_gaps: bool = True, kernel_tracks: bool = True,
+            heal: bool = True) -> Inspection:
     """Read, sew if needed, convert to arrays and measure one file. Raises WatertightError.
 
     ``array_gaps`` False skips measuring the gaps of the array model (``Inspection.array_gaps``
     stays empty): only ``watertight report`` shows them, the conversion works from the kernel's.
     ``kernel_tracks`` False measures ``gaps`` on the array model instead of kernel samples (the
     read-back of a written file, whose faces are Bezier patches that the arrays hold exactly:
-    the kernel's per-point evaluation took a third of the read-back).
+    the kernel's per-point evaluation took a third of the read-back). ``heal`` False reads
+    without the kernel's shape healing (``occ.io.no_healing``; the read-back too).
     """
     from .errors import KernelError
 
     try:
-        return _inspect(path, tol, array_gaps, kernel_tracks)
+        return _inspect(path, tol, array_gaps, kernel_tracks, heal)
     except KernelError as exc:  # name the file in every message
         if str(path) in str(exc):
             raise
@@ -66,12 +68,12 @@ def inspect(path: str, tol: Tolerances, array_gaps: bool = True, kernel_tracks: 
 
 
 def _inspect(path: str, tol: Tolerances, want_array_gaps: bool = True,
-             kernel_tracks: bool = True) -> Inspection:
+             kernel_tracks: bool = True, heal: bool = True) -> Inspection:
     from .occ.extract import build_model, prepare, sample_tracks
     from .occ.io import read_shape
 
     clock = _Clock()
-    read = read_shape(path)
+    read = read_shape(path, heal)
     clock.lap("read")
     shape, diag, sewing = prepare(read, str(path), tol)
     clock.lap("sew")

@@ -306,7 +306,8 @@ def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dic
     from .occ.structure import same_tree
     from .report import edge_gap_rows
 
-    out = inspect(dst, tol, array_gaps=False, kernel_tracks=False)
+    # the file as written: without the reader's shape healing, which would hide what it repairs
+    out = inspect(dst, tol, array_gaps=False, kernel_tracks=False, heal=False)
     if keep is not None:
         keep["read_back"] = out
     m = out.model

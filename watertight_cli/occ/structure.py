@@ -148,10 +148,11 @@ def bodies(shape: TopoDS_Shape) -> list[tuple[TopoDS_Shape, bool]]:
     return out
 
 
-def read_step(path: str) -> tuple[bool, Structure | None, TopoDS_Shape | None, object]:
+def read_step(path: str, heal: bool = True) -> tuple[bool, Structure | None, TopoDS_Shape | None, object]:
     """Read a STEP file through XCAF: (parsed, its structure, the shape to convert, the underlying
     STEP reader, for the file's units). The structure is None (and the shape the reader's one
-    shape) where XCAF finds no part with faces in a file the reader transferred."""
+    shape) where XCAF finds no part with faces in a file the reader transferred. ``heal`` False:
+    without the reader's shape healing (``io.no_healing``)."""
     app = XCAFApp_Application.GetApplication_s()
     doc = TDocStd_Document(TCollection_ExtendedString("MDTV-XCAF"))
     app.InitDocument(doc)
@@ -163,6 +164,11 @@ def read_step(path: str) -> tuple[bool, Structure | None, TopoDS_Shape | None, o
     step = reader.Reader()
     if reader.ReadFile(str(path)) != IFSelect_RetDone:
         return False, None, None, step
+    if not heal:  # after reading: reading sets the parameters from the defaults
+        from .io import no_healing  # io imports this module
+
+        no_healing(reader)
+        no_healing(step)  # the plain reader below, where XCAF finds no part
     structure = _structure(doc, step) if reader.Transfer(doc) else None
     if structure is None or not structure.parts:
         if step.NbShapes() == 0:
