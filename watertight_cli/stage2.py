@@ -274,12 +274,12 @@ def _patch_volume(model, result, faces: list[int]) -> float:
     for a 1e-6 check (on plate_with_holes.step, whose exact volume is 9600 - 200 pi = 8971.68147,
     it gives 8971.6963 by default and 8971.7220 at a requested precision of 1e-9); it is reported
     beside this one as ``volume_kernel``."""
-    from .core.bezier import surface_volume
+    from .core.bezier import surface_volumes
 
     total = 0.0
     for i in faces:
         sign = -1.0 if model.faces[i].reversed else 1.0
-        total += sign * sum(surface_volume(p.ctrl, p.rational) for p in result.faces[i].patches)
+        total += sign * float(surface_volumes([(p.ctrl, p.rational) for p in result.faces[i].patches]).sum())
     return abs(total)
 
 

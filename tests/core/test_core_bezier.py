@@ -233,3 +233,24 @@ def test_surface_volume_of_a_closed_set_of_patches():
             H[i, j] = [x * cz / wz * w, y * cz / wz * w, sz / wz * w, w]
     v = surface_volume(H, rational=True)
     assert abs(v) == pytest.approx(np.pi / 6.0, rel=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 6), st.integers(0, 6), st.booleans()), min_size=1, max_size=12),
+       st.integers(0, 2**31 - 1))
+def test_surface_volumes_of_mixed_nets_are_each_nets_volume(kinds, seed):
+    """The batched volumes (grouped by bidegree and kind) come back in the order given, each the
+    same as that net's volume alone, for polynomial and rational nets of mixed bidegrees."""
+    from watertight_cli.core.bezier import surface_volume, surface_volumes
+
+    rng = np.random.default_rng(seed)
+    nets = []
+    for m, n, rational in kinds:
+        c = rng.standard_normal((m + 1, n + 1, 3))
+        if rational:
+            c = np.concatenate([c, rng.uniform(0.5, 2.0, (m + 1, n + 1, 1))], axis=-1)
+        nets.append((c, rational))
+    got = surface_volumes(nets)
+    alone = np.array([surface_volume(c, r) for c, r in nets])
+    assert got.shape == (len(nets),)
+    np.testing.assert_allclose(got, alone, rtol=1e-12, atol=1e-12)

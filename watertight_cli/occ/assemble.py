@@ -82,7 +82,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
     patch has a side left free, it goes back to that net and the group is connected again
     (``triangles_reverted`` counts them)."""
-    from ..core.bezier import surface_volume
+    from ..core.bezier import surface_volumes
     from ..topology import connect, flat, folded, lens, needle, stray_needles
     from .build import joined_faces
 
@@ -160,7 +160,8 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             # orients it: the kernel's integration took 14 s of bug33398's 291 s, and as much again
             # for the report's volume of the same solids
             sign = [-1.0 if n[2] else 1.0 for n in nets]
-            vols = [sum(sign[i] * surface_volume(nets[i][0], nets[i][1]) for i in part) for part in parts]
+            each = surface_volumes([(c, r) for c, r, _ in nets])
+            vols = [sum(sign[i] * float(each[i]) for i in part) for part in parts]
             made, sizes = _solids(shells, vols)
             info["solids"] += len(made)
             info["volume"] += sum(sizes)
