@@ -204,3 +204,28 @@ def test_a_triangle_that_misses_as_a_whole_is_made_again_at_its_tip():
     assert np.allclose(corners[1, 0], rest[0, 0], atol=1e-13)
     assert np.allclose(corners[0, 1], rest[0, -1], atol=1e-13)
     assert np.allclose(corners[1, 1], curve_eval(rest[0], [0.5])[0], atol=1e-13)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(2, 25), st.integers(0, 2**31 - 1))
+def test_the_tensor_product_fit_solves_the_dense_normal_equations(n, seed):
+    """``_fit_plain`` (eigendecomposition of the one-direction Gram matrix) gives the solution of
+    the dense normal equations with the pull that the rational fit solves, to 1e-9 of its size."""
+    from watertight_cli.core.bernstein import basis
+    from watertight_cli.core.triangle import _PULL, _fit_plain
+
+    rng = np.random.default_rng(seed)
+    g = np.linspace(0.0, 1.0, 2 * n + 1)
+    b, a = basis(n, g), len(g)
+    target, net, blend = (rng.standard_normal(s) for s in ((a, a, 3), (n + 1, n + 1, 3), (n + 1, n + 1, 3)))
+    got = _fit_plain(b, target, net, blend).reshape(-1, 3)
+    B = np.einsum("ai,bj->abij", b, b).reshape(a * a, -1)
+    inner = np.zeros((n + 1, n + 1), bool)
+    inner[1:-1, 1:-1] = True
+    inner = inner.ravel()
+    A = B[:, inner]
+    mu = _PULL * float((A * A).sum()) / A.shape[1]
+    resid = target.reshape(-1, 3) - B[:, ~inner] @ net.reshape(-1, 3)[~inner]
+    rhs = A.T @ resid + mu * blend.reshape(-1, 3)[inner]
+    want = np.linalg.solve(A.T @ A + mu * np.eye(A.shape[1]), rhs)
+    assert np.abs(got - want).max() <= 1e-9 * np.abs(want).max()
