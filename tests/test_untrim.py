@@ -90,15 +90,21 @@ def _square_surface():
     return BSplineSurface(udegree=3, vdegree=3, uknots=kn, vknots=kn, poles=P, weights=None), P
 
 
-def test_ruled_cell_under_a_cubic_trim_is_exact():
-    """A cell between the v = 0 line and a cubic trim curve composes exactly (degree (6, 6*3))."""
-    surf, P = _square_surface()
+def _square_context(P: np.ndarray, tol: float, max_degree: int) -> _FaceContext:
+    """A face context over the one-span bicubic P on [0, 1]^2, without a face behind it."""
     ctx = _FaceContext.__new__(_FaceContext)
     ctx.face = type("F", (), {"index": 0})()
     ctx.rational, ctx.m, ctx.n = False, 3, 3
     ctx.ub = ctx.vb = np.array([0.0, 1.0])
     ctx.spans = P[None, None]
-    ctx.tol, ctx.max_degree = 1e-9, 25
+    ctx.tol, ctx.max_degree = tol, max_degree
+    return ctx
+
+
+def test_ruled_cell_under_a_cubic_trim_is_exact():
+    """A cell between the v = 0 line and a cubic trim curve composes exactly (degree (6, 6*3))."""
+    surf, P = _square_surface()
+    ctx = _square_context(P, 1e-9, 25)
     bottom = Side(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]]), True)
     trim = np.array([[0.0, 0.6, 1.0], [0.3, 0.9, 1.0], [0.7, 0.5, 1.0], [1.0, 0.8, 1.0]])
     top = Side(trim, False, edge=1, w0=0.0, w1=1.0)
@@ -120,12 +126,7 @@ def test_an_inverted_approximated_cell_is_reported_once_not_halved():
     are inverted again, so it is reported at once. Halving it down to the deepest split made 2^14
     cells (ec_turbine's face 33 with plan rung cuts, 27 s of a 63 s conversion)."""
     _, P = _square_surface()
-    ctx = _FaceContext.__new__(_FaceContext)
-    ctx.face = type("F", (), {"index": 0})()
-    ctx.rational, ctx.m, ctx.n = False, 3, 3
-    ctx.ub = ctx.vb = np.array([0.0, 1.0])
-    ctx.spans = P[None, None]
-    ctx.tol, ctx.max_degree = 1.0, 6  # the cubic side composes to degree 18: approximated
+    ctx = _square_context(P, 1.0, 6)  # the cubic side composes to degree 18: approximated
     bottom = Side(np.array([[0.0, 0.6, 1.0], [1.0, 0.6, 1.0]]), True)
     low = np.array([[0.0, 0.1, 1.0], [0.3, 0.3, 1.0], [0.7, 0.1, 1.0], [1.0, 0.2, 1.0]])
     top = Side(low, False, edge=1, w0=0.0, w1=1.0)
