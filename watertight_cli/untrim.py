@@ -961,6 +961,12 @@ def _split_side(side: Side, u: float) -> tuple[Side, Side]:
     )
 
 
+def _heights(ua: float, ubb: float, bot: Side, top: Side):
+    """The cell's height v_top - v_bottom at 9 u's across it, one at a time (callers stop early)."""
+    for u in np.linspace(ua, ubb, 9):
+        yield _eval(top.H, _t_at_u(top.H, float(u)))[0, 1] - _eval(bot.H, _t_at_u(bot.H, float(u)))[0, 1]
+
+
 class _FaceContext:
     def __init__(self, face: Face, g: _FaceGeometry, tol: float, max_degree: int):
         self.face = face
@@ -1052,21 +1058,11 @@ class _FaceContext:
 
     def _thin(self, ua: float, ubb: float, bot: Side, top: Side) -> bool:
         """Bottom and top closer than a sliver (in 3D, through the surface's v-speed) at every u."""
-        for u in np.linspace(ua, ubb, 9):
-            vb = _eval(bot.H, _t_at_u(bot.H, float(u)))[0, 1]
-            vt = _eval(top.H, _t_at_u(top.H, float(u)))[0, 1]
-            if abs(vt - vb) * self.g.sv > self.g.sliver:
-                return False
-        return True
+        return all(abs(h) * self.g.sv <= self.g.sliver for h in _heights(ua, ubb, bot, top))
 
     def _inverted(self, ua: float, ubb: float, bot: Side, top: Side) -> bool:
         """The top below the bottom (in v) at every u of the cell's samples."""
-        for u in np.linspace(ua, ubb, 9):
-            vb = _eval(bot.H, _t_at_u(bot.H, float(u)))[0, 1]
-            vt = _eval(top.H, _t_at_u(top.H, float(u)))[0, 1]
-            if vt >= vb:
-                return False
-        return True
+        return all(h < 0.0 for h in _heights(ua, ubb, bot, top))
 
     def _follow(self, E: Side, bot: Side, top: Side, P, frame) -> Patch | None:
         """A cell between two v-iso lines where one side is an edge whose parameter is not affine in
