@@ -281,6 +281,58 @@ def test_through_leaves_t_vertices_within_rounding_and_past_the_degree_budget():
     np.testing.assert_array_equal(bent[[0, -1]], row[[0, -1]])
 
 
+def _block_side():
+    """gmsh__Block.stp's face 189: a straight long side from a corner moved 1.77e-8 off its line
+    (x = 0) to a vertex on it; a short side takes [0, 0.815], whose corner at the T-vertex is the
+    model vertex on x = 0; the rest is the edge to the wall (face 271), straight on x = 0."""
+    row = np.linspace([-1.77e-8, -14.0, 28.0], [0.0, -10.0, 28.0], 5)
+    tau = 0.8153894785
+    corner = np.array([[0.0, -14.0 + 4.0 * tau, 28.0]])
+    edge = np.array([corner[0], [0.0, -10.0, 28.0]])
+    return row, np.array([tau]), corner, [(tau, 1.0, edge)]
+
+
+def test_a_long_side_bent_through_a_t_vertex_follows_the_edge_beside_its_uncovered_piece():
+    """The local bump through the T-vertex leaves the piece beyond it 6e-10 off the straight edge
+    that the neighbour across it takes (Block's I2 miss); bent with that piece as a guide, it passes
+    through the T-vertex and lies on the edge within 1e-13 x its length, its ends kept."""
+    row, ts, target, guides = _block_side()
+    plain = _through(row, False, ts, target)
+    assert S._guide_gap(plain, guides) > 1e-10
+    bent, gap = S._through_guided(row, ts, target, guides, atol=4e-13, max_degree=25, slack=1e-6)
+    assert gap <= 4e-13 and S._guide_gap(bent, guides) == gap
+    np.testing.assert_allclose(curve_eval(bent, ts), target, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(bent[[0, -1]], row[[0, -1]])
+    assert bent.shape[0] - 1 <= 10
+    # nothing to move: already on its guide and through its T-vertex
+    straight = np.linspace([0.0, -14.0, 28.0], [0.0, -10.0, 28.0], 5)
+    assert S._through_guided(straight, ts, curve_eval(straight, ts), guides, atol=1e-13) is None
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(coef, coef, coef), min_size=3, max_size=7),
+       st.floats(min_value=0.2, max_value=0.8), st.floats(min_value=-1e-6, max_value=1e-6))
+def test_a_guided_bend_interpolates_keeps_its_ends_and_is_no_farther_from_the_guide(ctrl, tau, d):
+    """Property: on a random row, with a T-vertex moved by d and the piece beyond it guided onto
+    the row's own piece moved by a linear blend from d to 0 at the end, the guided bend passes
+    through the T-vertex, keeps both ends and lies no farther from the guide than the plain bump."""
+    row = np.array(ctrl)
+    ts = np.array([tau])
+    target = curve_eval(row, ts) + d
+    guide = curve_segment(row, tau, 1.0)
+    guide = guide + np.linspace(1.0, 0.0, len(guide))[:, None] * d  # ends at the target and at the end
+    guides = [(tau, 1.0, guide)]
+    got = S._through_guided(row, ts, target, guides, atol=1e-14, max_degree=25, slack=1.0)
+    if got is None:
+        assert abs(d) <= 1e-14
+        return
+    bent, gap = got
+    np.testing.assert_allclose(curve_eval(bent, ts), target, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(bent[[0, -1]], row[[0, -1]], rtol=0, atol=1e-15)
+    plain = _through(row, False, ts, target, slack=1.0)
+    assert gap <= S._guide_gap(row if plain is None else plain, guides) + 1e-15
+
+
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.floats(0.5, 2.0), min_size=9, max_size=9))
 def test_missing_factors_make_a_shared_row_divisible_at_the_uncut_degree(ws):

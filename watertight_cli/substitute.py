@@ -49,7 +49,7 @@ from .core.reduce import reduce_curve
 from .gaps import vertex_corners
 from .model import Model
 from .tolerances import Tolerances
-from .topology import JOIN_REL, MERGE_REL
+from .topology import JOIN_REL, MERGE_REL, project
 from .untrim import RUNG_SLIDE, Patch, UntrimResult, _deriv_h, _eval, _t_at_u, cell_map, crossing_tails
 from .verify import side_deviations
 
@@ -97,6 +97,7 @@ class FaceSubstitution:
     inner_unpaired: int = 0  # inner sides without a partner of the same extent (T-junctions)
     inner_reparam: int = 0  # shared inner sides left as they are: same line, other parameterization
     inner_t: int = 0  # inner sides made subdivisions of a neighbour's longer side (T-vertices)
+    t_guided: int = 0  # such long sides bent onto the shared curve beside them too (``_through_guided``)
     inner_mismatch: int = 0  # sides paired by their corners but further apart than a copy may move
     rungs_fitted: int = 0  # rungs on an edge that took its curve at their own parameter (a fit)
     rungs_slid: int = 0  # such rungs whose fit needed more than the degree budget: K taken as it is
@@ -461,6 +462,39 @@ class _Curves:
                         K[[0, -1]] = want
             self._k[key] = K
         return K if wa <= wb else K[::-1]
+
+    def between(self, ka, kb, face: int) -> list[np.ndarray]:
+        """The shared curves from corner ``ka`` to corner ``kb`` (``corner_key`` values): the
+        segments, each within one piece of its edge's curve, of the edges of ``face`` that run
+        between the two (both on one edge, or a vertex and a point of an edge that ends there,
+        or two vertices of an edge). Oriented from ka to kb."""
+        if ka is None or kb is None or ka == kb:
+            return []
+        found = []
+        for ce in (ce for loop in self.model.faces[face].loops for ce in loop.coedges):
+            edge = self.model.edges[ce.edge]
+            if edge.curve is None or edge.degenerate or ce.edge in {x[1] for x in found}:
+                continue
+            at = []
+            for k in (ka, kb):
+                if k[0] == "e":
+                    at.append([k[2]] if k[1] == ce.edge else [])
+                else:
+                    at.append([w for w, v in ((edge.first, edge.vertices[0]), (edge.last, edge.vertices[1]))
+                               if v == k[1]])
+            for wa in at[0]:
+                for wb in at[1]:
+                    if wa != wb and self._one_piece(ce.edge, min(wa, wb), max(wa, wb)):
+                        found.append((self.segment(ce.edge, wa, wb), ce.edge))
+        return [K for K, _ in found]
+
+    def _one_piece(self, e: int, lo: float, hi: float) -> bool:
+        """Whether [lo, hi] lies within one piece of what ``_piece`` cuts from (a span of C or of
+        its fit, a plan piece of the midway curve): a segment across a break is not the curve."""
+        br = self._mid[e][0] if e in self._mid else self.spans(e)[0]
+        inner = br[1:-1]
+        eps = 1e-9 * max(float(br[-1] - br[0]), 1e-300)
+        return not np.any((inner > lo + eps) & (inner < hi - eps))
 
     def _piece(self, e: int, lo: float, hi: float) -> np.ndarray:
         """The shared curve on [lo, hi] as cut from C', its fits or the midway curve."""
@@ -1011,6 +1045,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
         fs = FaceSubstitution(fr.face)
         faces.append(fs)
         moved: dict[tuple[int, tuple[int, int]], np.ndarray] = {}
+        keyed: dict[tuple[int, tuple[int, int]], tuple] = {}  # the same corners' ``corner_key``
         for pi, (p, (refs, _)) in enumerate(zip(fr.patches, info, strict=True)):
             rows: dict[str, np.ndarray] = {}
             corners: dict[tuple[int, int], tuple] = {}
@@ -1055,8 +1090,13 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
                 _apply(p, rows, corners, curves, fs, tol)
                 for c, key in corners.items():
                     moved[(pi, c)] = curves.corner(key)
+                    keyed[(pi, c)] = key
         labels = _unify_corners(fr, info, moved, fs, MERGE_REL * model.diagonal)
-        _share_inner(fr, info, labels, fs, tol, model.diagonal)
+        at: dict[int, tuple] = {}
+        for pc, key in keyed.items():
+            at.setdefault(labels[pc], key)
+        _share_inner(fr, info, labels, fs, tol, model.diagonal,
+                     lambda la, lb, face=fr.face, at=at: curves.between(at.get(la), at.get(lb), face))
         if progress is not None:
             progress(1)
     for fr, fs, before in zip(result.faces, faces, stage1, strict=True):
@@ -1380,9 +1420,11 @@ def _displace(H: np.ndarray, moves: dict, rational: bool) -> None:
         H += d
 
 
-def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, diagonal: float) -> None:
+def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, diagonal: float,
+                 guide=None) -> None:
     """Make inner sides that two patches share bitwise equal (the lowest-degree row wins): two
-    sides are shared when they join the same two corners (see ``_unify_corners``)."""
+    sides are shared when they join the same two corners (see ``_unify_corners``). ``guide``
+    (two corner ids -> the shared curves between them) is for ``_share_t_sides``."""
     items = []  # (patch index, side name, start uv, end uv)
     ends = []
     for i, (refs, cm) in enumerate(info):
@@ -1431,7 +1473,7 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
                 continue
             _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal, src.factors)
             fs.inner_shared += 1
-    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners, ends)
+    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners, ends, guide)
 
 
 def _side_uv(p: Patch, name: str, g: np.ndarray) -> np.ndarray:
@@ -1461,14 +1503,18 @@ def _same_parameter(a: Patch, an: str, b: Patch, bn: str, flip: bool, eps, eps3:
 
 
 def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubstitution, tol: Tolerances,
-                   diagonal: float, partners: dict, ends: list) -> None:
+                   diagonal: float, partners: dict, ends: list, guide=None) -> None:
     """Sides that meet a longer side of a neighbour at a T-vertex become subdivisions of that side,
     so the two stay on one curve (its corners at the T-vertex are computed once). The long side
     is a lonely one where there is one; else a side shared whole (``partners``: across a cell
     thinner than the joining tolerance, whose two sides were made one row), whose partners then
     take the long side's row too when it is bent. ``ends``: per side, the corner ids at its ends
     (``_unify_corners``); a short side's end that is the long side's end corner is cut there,
-    not at its uv, which may lie a sliver before it."""
+    not at its uv, which may lie a sliver before it. ``guide`` (two corner ids -> the shared
+    curves between them): a piece of the long side that no short side here takes, from corner to
+    corner of an edge of the face, lies beside the neighbour across that edge, whose side is the
+    edge's shared curve; the bend then also takes the long side onto that curve there
+    (``_through_guided``)."""
     if not lonely:
         return
     # shorts: the lonely sides; containers: lonely ones first, else sides shared whole (across a
@@ -1524,9 +1570,9 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
         cuts = []
         for k, ua, ub in shorts:
             sp = fr.patches[items[k][0]]
-            ends = _cartesian(_row(sp.ctrl, items[k][1]), sp.rational)[[0, -1]]
+            tips = _cartesian(_row(sp.ctrl, items[k][1]), sp.rational)[[0, -1]]
             cut = []
-            for tau, x in ((ua, ends[0]), (ub, ends[1])):
+            for tau, x in ((ua, tips[0]), (ub, tips[1])):
                 same = [n for n, t0 in enumerate(ts) if abs(tau - t0) <= _T_MERGE
                         and np.linalg.norm(x - targets[n]) <= 1e-12 * diagonal]
                 if same:
@@ -1537,9 +1583,17 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
                 cut.append(tau)
             cuts.append((k, *cut))
         shorts = cuts
-        if ts:
-            bent = _through(row, long_p.rational, np.array(ts), np.array(targets), _BEND_REL * diagonal,
-                            tol.max_degree, _BUMP_SLACK * tol.approx_rel * diagonal)
+        guides = [] if guide is None or long_p.rational else _guides(row, shorts, ends, j, guide,
+                                                                     tol.approx_rel * diagonal)
+        if ts or guides:
+            ts_, targets_ = np.array(ts).reshape(-1), np.array(targets).reshape(-1, 3)
+            atol, slack = _BEND_REL * diagonal, _BUMP_SLACK * tol.approx_rel * diagonal
+            bent = _through(row, long_p.rational, ts_, targets_, atol, tol.max_degree, slack) if ts else None
+            if guides:
+                fit = _through_guided(row, ts_, targets_, guides, atol, tol.max_degree, slack)
+                if fit is not None and fit[1] < _guide_gap(row if bent is None else bent, guides):
+                    bent = fit[0]
+                    fs.t_guided += 1
             if bent is not None:
                 _copy_row(long_p, lname, bent, long_p.rational, fs, tol, diagonal, long_p.factors)
                 row = _row(long_p.ctrl, lname)
@@ -1551,6 +1605,103 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
                       fs, tol, diagonal, long_p.factors)
             fs.inner_t += 1
     fs.inner_unpaired += len(set(lonely) - used)
+
+
+def _guides(row: np.ndarray, shorts: list, ends: list, j: int, guide, near: float) -> list:
+    """The pieces (a, b, K) of long side ``j`` (row, polynomial) that none of ``shorts`` ((side,
+    parameter of its start on the long side, of its end)) takes and that run along a shared curve K
+    from corner to corner (``guide`` of the corner ids at a and b): the nearest such curve, when
+    the piece lies within ``near`` of it."""
+    cover = sorted((ua, ub, *ends[k]) if ua <= ub else (ub, ua, *ends[k][::-1]) for k, ua, ub in shorts)
+    pos, at, gaps = 0.0, ends[j][0], []
+    for lo, hi, la, lb in cover:
+        if lo > pos + _T_MERGE:
+            gaps.append((pos, lo, at, la))
+        if hi > pos:
+            pos, at = hi, lb
+    if pos < 1.0 - _T_MERGE:
+        gaps.append((pos, 1.0, at, ends[j][1]))
+    out = []
+    for a, b, la, lb in gaps:
+        pts = curve_eval(row, a + (b - a) * np.array([0.25, 0.5, 0.75]))
+        best = min(((float(project(_homog(K), pts)[1].max()), i, K) for i, K in enumerate(guide(la, lb))),
+                   default=None)
+        if best is not None and best[0] <= near:
+            out.append((a, b, best[2]))
+    return out
+
+
+_GUIDE_GRID = np.linspace(0.0, 1.0, 65)
+
+
+def _guide_feet(row: np.ndarray, guides: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The row's samples on its guided pieces: parameters, points, and their feet on the guides."""
+    tau = np.concatenate([a + (b - a) * _GUIDE_GRID for a, b, _ in guides])
+    pts = curve_eval(row, tau)
+    feet = []
+    for (_, _, K), chunk in zip(guides, np.split(pts, len(guides)), strict=True):
+        s, _ = project(_homog(K), chunk)
+        feet.append(curve_eval(K, s))
+    return tau, pts, np.concatenate(feet)
+
+
+def _guide_gap(row: np.ndarray, guides: list) -> float:
+    """Largest distance of the row's guided pieces from their guides (sampled)."""
+    _, pts, feet = _guide_feet(row, guides)
+    return float(np.linalg.norm(pts - feet, axis=1).max())
+
+
+def _through_guided(row: np.ndarray, ts: np.ndarray, targets: np.ndarray, guides: list, atol: float,
+                    max_degree: int = 25, slack: float = 0.0) -> tuple[np.ndarray, float] | None:
+    """A polynomial row plus a correction D, zero at both ends, that passes through ``targets`` at
+    ``ts`` exactly and takes each guided piece (a, b, K) onto its curve K (least squares on the
+    feet of the row's samples), of the lowest degree (from the row's own) that is within ``atol``
+    there and does not bulge past _BUMP_CAP x the largest move (or past ``slack``); else the
+    closest one that does not bulge. Returns the row and its sampled distance from the guides,
+    or None when nothing needs to move or no degree keeps the bulge within bounds.
+
+    A long side that only partly borders the patches of its face (the rest runs along an edge of
+    the face, and a face beyond takes the edge's shared curve there) cannot follow both with the
+    local bump of ``_through``: Block's side ran 6.2e-10 off its neighbour's straight edge, its
+    bump peaking past the T-vertex."""
+    n = row.shape[0] - 1
+    tau, pts, feet = _guide_feet(row, guides)
+    E = feet - pts
+    delta = targets - curve_eval(row, ts) if len(ts) else np.zeros((0, 3))
+    scale = max(float(np.linalg.norm(E, axis=1).max()),
+                float(np.linalg.norm(delta, axis=1).max()) if len(ts) else 0.0)
+    if scale <= atol:
+        return None
+    x = np.linspace(0.0, 1.0, 129)
+    best = None
+    for m in range(max(n, len(ts) + 1, 2), max(max_degree, 2) + 1):
+        Bs = basis(m, tau)[:, 1:-1]
+        if len(ts):
+            Bt = basis(m, ts)[:, 1:-1]
+            c0 = np.linalg.lstsq(Bt, delta, rcond=None)[0]
+            if np.abs(Bt @ c0 - delta).max() > 1e-9 * scale:
+                continue
+            _, sv, vt = np.linalg.svd(Bt)
+            N = vt[int(np.sum(sv > 1e-12 * sv[0])):].T
+        else:
+            c0, N = np.zeros((m - 1, 3)), np.eye(m - 1)
+        c = c0 + N @ np.linalg.lstsq(Bs @ N, E - Bs @ c0, rcond=None)[0] if N.shape[1] else c0
+        peak = float(np.linalg.norm(basis(m, x)[:, 1:-1] @ c, axis=1).max()) / scale
+        if peak > _BUMP_CAP and peak * scale > slack:
+            continue
+        D = np.zeros((m + 1, 3))
+        D[1:-1] = c
+        out = (elevate_curve(row, m - n) if m > n else row) + D
+        if len(ts):
+            out_t = curve_eval(out, ts)
+            if np.linalg.norm(out_t - targets, axis=1).max() > max(1e-9 * scale, atol):
+                continue
+        gap = _guide_gap(out, guides)
+        if best is None or gap < best[1]:
+            best = (out, gap)
+        if gap <= atol:
+            break
+    return best
 
 
 def _through(row: np.ndarray, rational: bool, ts: np.ndarray, targets: np.ndarray, atol: float = 0.0,
