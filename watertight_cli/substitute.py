@@ -1666,40 +1666,45 @@ def _through_guided(row: np.ndarray, ts: np.ndarray, targets: np.ndarray, guides
     bump peaking past the T-vertex."""
     n = row.shape[0] - 1
     tau, pts, feet = _guide_feet(row, guides)
-    E = feet - pts
+    # the guides' points at the row's parameter mapped affinely (a piece cut from the same curve
+    # as the guide keeps its parameter), and the feet of the row's points on them (any other
+    # parameter); whichever fit comes closer is kept
+    along = np.concatenate([curve_eval(K, _GUIDE_GRID) for _, _, K in guides])
     delta = targets - curve_eval(row, ts) if len(ts) else np.zeros((0, 3))
-    scale = max(float(np.linalg.norm(E, axis=1).max()),
+    scale = max(float(np.linalg.norm(feet - pts, axis=1).max()),
                 float(np.linalg.norm(delta, axis=1).max()) if len(ts) else 0.0)
     if scale <= atol:
         return None
     x = np.linspace(0.0, 1.0, 129)
     best = None
-    for m in range(max(n, len(ts) + 1, 2), max(max_degree, 2) + 1):
-        Bs = basis(m, tau)[:, 1:-1]
-        if len(ts):
-            Bt = basis(m, ts)[:, 1:-1]
-            c0 = np.linalg.lstsq(Bt, delta, rcond=None)[0]
-            if np.abs(Bt @ c0 - delta).max() > 1e-9 * scale:
+    for E in (along - pts, feet - pts):
+        for m in range(max(n, len(ts) + 1, 2), max(max_degree, 2) + 1):
+            Bs = basis(m, tau)[:, 1:-1]
+            if len(ts):
+                Bt = basis(m, ts)[:, 1:-1]
+                c0 = np.linalg.lstsq(Bt, delta, rcond=None)[0]
+                if np.abs(Bt @ c0 - delta).max() > 1e-9 * scale:
+                    continue
+                _, sv, vt = np.linalg.svd(Bt)
+                N = vt[int(np.sum(sv > 1e-12 * sv[0])):].T
+            else:
+                c0, N = np.zeros((m - 1, 3)), np.eye(m - 1)
+            c = c0 + N @ np.linalg.lstsq(Bs @ N, E - Bs @ c0, rcond=None)[0] if N.shape[1] else c0
+            peak = float(np.linalg.norm(basis(m, x)[:, 1:-1] @ c, axis=1).max()) / scale
+            if peak > _BUMP_CAP and peak * scale > slack:
                 continue
-            _, sv, vt = np.linalg.svd(Bt)
-            N = vt[int(np.sum(sv > 1e-12 * sv[0])):].T
-        else:
-            c0, N = np.zeros((m - 1, 3)), np.eye(m - 1)
-        c = c0 + N @ np.linalg.lstsq(Bs @ N, E - Bs @ c0, rcond=None)[0] if N.shape[1] else c0
-        peak = float(np.linalg.norm(basis(m, x)[:, 1:-1] @ c, axis=1).max()) / scale
-        if peak > _BUMP_CAP and peak * scale > slack:
-            continue
-        D = np.zeros((m + 1, 3))
-        D[1:-1] = c
-        out = (elevate_curve(row, m - n) if m > n else row) + D
-        if len(ts):
-            out_t = curve_eval(out, ts)
-            if np.linalg.norm(out_t - targets, axis=1).max() > max(1e-9 * scale, atol):
+            D = np.zeros((m + 1, 3))
+            D[1:-1] = c
+            out = (elevate_curve(row, m - n) if m > n else row) + D
+            miss = np.linalg.norm(curve_eval(out, ts) - targets, axis=1).max() if len(ts) else 0.0
+            if miss > max(1e-9 * scale, atol):
                 continue
-        gap = _guide_gap(out, guides)
-        if best is None or gap < best[1]:
-            best = (out, gap)
-        if gap <= atol:
+            gap = _guide_gap(out, guides)
+            if best is None or gap < best[1]:
+                best = (out, gap)
+            if gap <= atol:
+                break
+        if best is not None and best[1] <= atol:
             break
     return best
 
