@@ -695,3 +695,67 @@ def test_thin_patch_counts_slivers_below_the_tolerance_and_not_pole_triangles():
     assert not thin_patch(grid(S, T), width)
     assert not thin_patch(grid(S * T, T), width)  # a triangle: its side s = 0 collapsed at the pole
     assert not thin_patch(grid(5e-3 * S, 4e-4 * T), width)  # small, but not long: not a sliver
+
+
+def _cusp_model(c: float):
+    """Two quadratic edges leaving vertex 0 at the origin along x: a = (w, c w^2, 0) and
+    b = (w, -c w^2, 0), w in [0, 1], 2 c w^2 apart (a cusp for c small)."""
+    from types import SimpleNamespace
+
+    from watertight_cli.model import BSplineCurve
+
+    knots = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+    edges = [SimpleNamespace(curve=BSplineCurve(2, knots, np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0],
+                                                                    [1.0, s * c, 0.0]])),
+                             first=0.0, last=1.0, vertices=(0, k + 1))
+             for k, s in enumerate((1.0, -1.0))]
+    return SimpleNamespace(edges=edges, vertices=np.array([[0.0, 0.0, 0.0], [1.0, c, 0.0], [1.0, -c, 0.0]]))
+
+
+def test_a_cusp_tail_ends_at_the_farthest_corner_pair_within_the_joining_distance():
+    """Two edges of a face that leave a vertex tangentially, 2 c w^2 apart: the tail runs to the
+    farthest pair of the face's corners (one on each edge) within eps of each other over the whole
+    stretch; a corner without a partner on the other edge is passed over; edges at an angle, or a
+    tail shorter than 10 eps, give none (``untrim.cusp_tails``)."""
+    from watertight_cli.untrim import _cusp, _tangent
+
+    eps = 1e-7
+    model = _cusp_model(1e-3)  # 2e-9 apart at w = 1e-3, 2e-7 at 1e-2
+    assert _tangent(model, 0, 0.0, 1, 0.0)
+    corners = {1e-4, 5e-4, 1e-3, 1e-2, 0.1, 1.0}
+    tail = _cusp(model, 0, (0, 0.0, corners | {7e-4}), (1, 0.0, corners), eps)
+    assert tail == ((0, 1e-3, 0.0), (1, 1e-3, 0.0))
+    assert _cusp(model, 0, (0, 0.0, {5e-7}), (1, 0.0, {5e-7}), eps) is None  # shorter than 10 eps
+    assert _cusp(model, 0, (0, 0.0, {1e-2}), (1, 0.0, {1e-2}), eps) is None  # 2e-7 apart
+    wide = _cusp_model(1.0)
+    wide.edges[1].curve.poles[1] = [0.5, -0.5, 0.0]  # leaves the vertex at 45 degrees
+    assert not _tangent(wide, 0, 0.0, 1, 0.0)
+
+
+def test_cusps_of_a_real_file_are_cut_into_every_face_of_their_edges():
+    """gmsh__U_Joint_2.stp: at 12 cusps a wedge face narrows to nothing between two tangent edges, its
+    cells near the tip are dropped as flat, and the faces beyond met each other there 2.6e-9 apart
+    (I2's goal missed). Stage 1 finds each cusp's tail and puts its far end into the edge plan,
+    so every face on both edges has a corner there, and stage 2 gives both tails one curve."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.sameparam import retime
+    from watertight_cli.substitute import IsoPieces, _refs
+    from watertight_cli.untrim import RUNG_SLIDE, crossing_tails, untrim
+
+    model = inspect(str(corpus_path("gmsh__U_Joint_2.stp")), TOL, array_gaps=False).model
+    retime(model, TOL)
+    res = untrim(model, TOL)
+    tails = {t for fr in res.faces for t in crossing_tails(model, fr)}
+    assert len(tails) >= 12
+    slide = RUNG_SLIDE * TOL.approx_rel * model.diagonal
+    corners: dict[int, dict[int, set[float]]] = {}
+    for fr in res.faces:
+        iso = IsoPieces(fr.iso_pieces)
+        for p in fr.patches:
+            for ref in _refs(p, iso, fr.eps, slide)[0].values():
+                if ref is not None and not ref.pole and ref.along is None:
+                    corners.setdefault(ref.edge, {}).setdefault(fr.face, set()).update((ref.wa, ref.wb))
+    for tail in tails:
+        for e, x, _ in tail:
+            for face, ws in corners[e].items():
+                assert min(abs(w - x) for w in ws) <= 1e-9 * abs(x), (e, x, face)

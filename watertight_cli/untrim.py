@@ -1605,9 +1605,15 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
         faces.append(fr)
         if progress is not None:
             progress(1)
+    from .topology import JOIN_REL
+
+    cusps = {i: cusp_tails(model, fr, JOIN_REL * model.diagonal, slide) for i, fr in enumerate(faces)}
+    for i, tails in cusps.items():
+        faces[i].crossings.extend(tails)
     own: dict[int, dict[int, set[float]]] = {}
     for i in _crossing_cuts(model, plan, faces, tol.sliver_rel * model.diagonal, own):
         fr = _face_or_problem(model.faces[i], model, _plan_without(plan, own.get(i, {})), tol, geoms[i])
+        fr.crossings.extend(cusps[i])  # the face made again keeps its cusps' tails
         if len(fr.problems) <= len(faces[i].problems):
             faces[i] = fr
     return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time, own)
@@ -1646,6 +1652,96 @@ def crossing_tails(model: Model, fr: FaceResult) -> list[tuple[tuple[int, float,
         if ea != eb and va is not None and va == vb and xa != fa and xb != fb:
             out.append(((ea, xa, fa), (eb, xb, fb)))
     return out
+
+
+def cusp_tails(model: Model, fr: FaceResult, eps: float, slide: float) -> list:
+    """The face's cusps as tails (the form of ``FaceResult.crossings``): where two of its edges a < b
+    leave a vertex V tangentially and stay within ``eps`` (the B-rep's joining distance) of each
+    other, the face between them is a sliver the B-rep cannot keep (its cells are dropped as
+    flat), so the faces beyond a and beyond b meet each other there. Given each its own edge's
+    curve, they stood as far apart as the sliver is wide (gmsh__U_Joint_2.stp: 2.6e-9 beside its
+    cusps, fusee: 1.7e-7). As for a crossing, the edge plan then cuts both edges at the tail's far
+    end and stage 2 gives the two tails a's curve (``substitute._Tails``). The tail runs from V to
+    the farthest pair of the face's corners, one on a and one on b, within ``eps`` of each other,
+    with a and b over the stretch to them within ``eps`` (b's parameter mapped affinely onto
+    a's, as stage 2 maps it); one shorter than 10 ``eps`` is left alone."""
+    if fr.problems or not fr.patches:
+        return []
+    at: dict[int, list[tuple[int, float]]] = {}
+    for e in {ce.edge for lp in model.faces[fr.face].loops for ce in lp.coedges}:
+        edge = model.edges[e]
+        if edge.curve is None or edge.degenerate or edge.seam:
+            continue
+        for v, w in ((edge.vertices[0], edge.first), (edge.vertices[1], edge.last)):
+            at.setdefault(v, []).append((e, w))
+    pairs = []
+    for v, ends in at.items():
+        if len(ends) == 2 and ends[0][0] != ends[1][0]:
+            (ea, fa), (eb, fb) = sorted(ends)
+            if _tangent(model, ea, fa, eb, fb):
+                pairs.append((v, ea, fa, eb, fb))
+    if not pairs:
+        return []
+    from .substitute import IsoPieces, _refs  # here: substitute imports this module
+
+    iso = IsoPieces(fr.iso_pieces)
+    params: dict[int, set[float]] = {}
+    for p in fr.patches:
+        for ref in _refs(p, iso, fr.eps if fr.eps is not None else (0.0, 0.0), slide)[0].values():
+            if ref is not None and not ref.pole and ref.along is None:
+                params.setdefault(ref.edge, set()).update((float(ref.wa), float(ref.wb)))
+    out = []
+    for v, ea, fa, eb, fb in pairs:
+        tail = _cusp(model, v, (ea, fa, params.get(ea, set())), (eb, fb, params.get(eb, set())), eps)
+        if tail is not None:
+            out.append(tail)
+    return out
+
+
+#: two edges leaving a vertex at less than this angle (radians) are looked at as a cusp
+_CUSP_ANGLE = 0.01
+
+
+def _tangent(model: Model, ea: int, fa: float, eb: int, fb: float) -> bool:
+    """Whether edges a and b leave their common vertex (at parameters fa and fb) in one direction."""
+    dirs = []
+    for e, f in ((ea, fa), (eb, fb)):
+        edge = model.edges[e]
+        h = 1e-6 * (edge.last - edge.first) * (1.0 if f == edge.first else -1.0)
+        d = np.diff(edge.curve.evaluate(np.array([f, f + h])), axis=0)[0]
+        n = float(np.linalg.norm(d))
+        if n == 0.0:
+            return False
+        dirs.append(d / n)
+    return float(np.dot(dirs[0], dirs[1])) > np.cos(_CUSP_ANGLE)
+
+
+def _cusp(model: Model, v: int, a: tuple, b: tuple, eps: float):
+    """The tail of the cusp at vertex v between edges a and b, each (edge, parameter at v, the
+    face's corner parameters on it), or None (``cusp_tails``). Going out from v over the corners
+    on a: the farthest one with a corner on b within ``eps`` of it, where a and b over the stretch
+    to them stay within ``eps`` of each other at affinely mapped parameters."""
+    (ea, fa, wa), (eb, fb, wb) = a, b
+    ca, cb = model.edges[ea].curve, model.edges[eb].curve
+    xa = np.array(sorted((w for w in wa if w != fa), key=lambda w: abs(w - fa)))
+    xb = np.array(sorted((w for w in wb if w != fb), key=lambda w: abs(w - fb)))
+    if not len(xa) or not len(xb):
+        return None
+    pa, pb = ca.evaluate(xa), cb.evaluate(xb)
+    g = np.linspace(0.0, 1.0, 33)
+    best = None
+    for i in range(len(xa)):
+        d = np.linalg.norm(pb - pa[i], axis=1)
+        j = int(np.argmin(d))
+        if d[j] > eps:
+            continue
+        apart = ca.evaluate(fa + g * (xa[i] - fa)) - cb.evaluate(fb + g * (xb[j] - fb))
+        if np.linalg.norm(apart, axis=1).max() > eps:
+            break
+        best = (i, (ea, float(xa[i]), fa), (eb, float(xb[j]), fb))
+    if best is None or np.linalg.norm(pa[best[0]] - model.vertices[v]) < 10.0 * eps:
+        return None
+    return best[1:]
 
 
 def _crossing_cuts(model: Model, plan: dict[int, np.ndarray], faces: list[FaceResult],
