@@ -824,6 +824,7 @@ def _rounded(x: np.ndarray, digits: int = 13) -> np.ndarray:
 def _curves_with(span: np.ndarray, rational: bool) -> S._Curves:
     curves = S._Curves.__new__(S._Curves)
     curves._spans = {0: (np.array([0.0, 1.0]), [span], rational)}
+    curves._alias_moves = {}
     return curves
 
 
@@ -954,3 +955,33 @@ def test_a_t_side_ending_in_its_long_sides_end_corner_ends_there():
     left = fr.patches[2].ctrl[0]
     np.testing.assert_array_equal(left[-1], fr.patches[0].ctrl[-1, -1])
     np.testing.assert_array_equal(left[-1], fr.patches[3].ctrl[0, 0])
+
+
+def test_an_aliased_corner_moves_its_edge_as_one_curve():
+    """The far end of a tail (``_Tails``) takes the other edge's corner there; the edge's curve moves
+    by the difference, fading linearly in w towards its other end. A long side ending there and a
+    short one beside it (a T-vertex) are then pieces of one curve: with a straight blend per
+    segment, the T-vertex stood off the long side (fusee's cusp: 1.7e-7)."""
+    from types import SimpleNamespace
+
+    from watertight_cli.model import BSplineCurve
+
+    knots = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+    c = 1e-3
+    edges = [SimpleNamespace(curve=BSplineCurve(2, knots, np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0],
+                                                                    [1.0, s * c, 0.0]])),
+                             first=0.0, last=1.0, vertices=(0, k + 1), index=k)
+             for k, s in enumerate((1.0, -1.0))]
+    vertices = np.array([[0.0, 0.0, 0.0], [1.0, c, 0.0], [1.0, -c, 0.0]])
+    curves = S._Curves(SimpleNamespace(edges=edges, vertices=vertices, diagonal=2.0), 1e-9, 25, vertices)
+    curves.corner_alias = {1: [(0.3, 0, 0.3)]}
+    there = curves.corner(curves.corner_key(1, 0.3))
+    np.testing.assert_array_equal(there, edges[0].curve.evaluate(np.array([0.3]))[0])
+    long, short = curves.segment(1, 1.0, 0.3), curves.segment(1, 0.5, 0.3)
+    np.testing.assert_allclose(long[-1], there, rtol=0, atol=1e-16)
+    np.testing.assert_allclose(short[-1], there, rtol=0, atol=1e-16)
+    np.testing.assert_allclose(curve_eval(long, np.array([0.5 / 0.7])), short[:1], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(long[0], vertices[2])  # the far end stays on its vertex
+    # the move at the T-vertex is the fade's share of the corner's: 2 c 0.09 x (1 - 0.5) / 0.7
+    moved = short[0] - edges[1].curve.evaluate(np.array([0.5]))[0]
+    np.testing.assert_allclose(moved, [0.0, 2 * c * 0.09 * 0.5 / 0.7, 0.0], rtol=1e-12, atol=1e-18)

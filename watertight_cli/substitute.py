@@ -172,6 +172,7 @@ class _Curves:
         # a crossing's point on the second edge is the first edge's point there (``_Tails``):
         # edge -> [(w on it, other edge, w on that)]
         self.corner_alias: dict[int, list[tuple[float, int, float]]] = {}
+        self._alias_moves: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}
 
     def spans(self, e: int):
         if e not in self._spans:
@@ -325,6 +326,7 @@ class _Curves:
                 worst = max(worst, best[1])
         if rational and all(np.all(x[:, 3] == x[0, 3]) for x in sp):
             self._spans[e] = (br, [x[:, :3] / x[:, 3:] for x in sp], False)
+        self._alias_moves.clear()
         return worst
 
     def decide(self, e: int, uses: list[tuple[float, float, np.ndarray, float]]) -> None:
@@ -358,6 +360,7 @@ class _Curves:
             self.fit_error[e] = max(f[1] for f in fits)
         else:
             del self._fits[e]
+        self._alias_moves.clear()
 
     def decide_midway(self, e: int, cuts: np.ndarray) -> bool:
         """Use the curve midway between the two faces' boundaries S_f(pc_f(w)) on edge ``e`` when its
@@ -423,6 +426,7 @@ class _Curves:
             K = nets[i]
             nets[i] = K + (elevate_curve(D, K.shape[0] - 2) if K.shape[0] > 2 else D)
         self._mid[e] = (breaks, nets)
+        self._alias_moves.clear()
         self.mid_error[e] = err + max(float(np.linalg.norm(d0)), float(np.linalg.norm(d1)))
         return True
 
@@ -497,6 +501,43 @@ class _Curves:
         return not np.any((inner > lo + eps) & (inner < hi - eps))
 
     def _piece(self, e: int, lo: float, hi: float) -> np.ndarray:
+        """The shared curve on [lo, hi]: ``_cut`` plus the aliased corners' move (``_alias_move``)."""
+        K = self._cut(e, lo, hi)
+        move = self._alias_move(e)
+        if move is None:
+            return K
+        ws, d = move
+        D = np.stack([np.interp([lo, hi], ws, d[:, k]) for k in range(3)], axis=1)  # affine in w here
+        if not D.any():
+            return K
+        if K.shape[1] == 3:
+            return K + (elevate_curve(D, K.shape[0] - 2) if K.shape[0] > 2 else D)
+        Dw = product(D, K[:, 3])
+        return np.concatenate([elevate_curve(K, 1)[:, :3] + Dw, elevate_curve(K[:, 3:], 1)], axis=1)
+
+    def _alias_move(self, e: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Where a corner of edge e is another edge's corner (``corner_alias``: the far end of a
+        tail, ``_Tails``), the edge's curve moves there by the distance between the two, and the
+        move fades linearly in w to nothing at the next such corner or the edge's end: (knots w,
+        moves). One function of w for the whole edge, so every segment cut from it is a piece of
+        one curve. Moving each segment's end by a straight blend of its own (``segment``) bent a
+        long side and the short ones beside it differently: at fusee's cusp a neighbour's corner
+        stood 1.7e-7 off a side that ended at the moved corner. None when no corner moves."""
+        if e not in self._alias_moves:
+            self._alias_moves[e] = None  # while it is computed (an alias of an alias stays still)
+            alias = self.corner_alias.get(e, ())
+            if alias:
+                edge = self.model.edges[e]
+                knots = {edge.first: np.zeros(3), edge.last: np.zeros(3)}
+                for x, e1, x1 in alias:
+                    h = self._cut(e, x, x)[0]
+                    here = h[:3] / h[3] if h.shape[0] == 4 else h
+                    knots[float(x)] = self.corner(self.corner_key(e1, x1)) - here
+                ws = np.array(sorted(knots))
+                self._alias_moves[e] = (ws, np.array([knots[w] for w in ws]))
+        return self._alias_moves[e]
+
+    def _cut(self, e: int, lo: float, hi: float) -> np.ndarray:
         """The shared curve on [lo, hi] as cut from C', its fits or the midway curve."""
         if e in self._mid:
             br, nets = self._mid[e]
