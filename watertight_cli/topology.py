@@ -744,7 +744,10 @@ def _match(edge: TopoEdge, rows, i: int, name: str, s0: float, s1: float, v0: in
         a0, a1 = (s0, s1) if v0 == edge.va else (s1, s0)
         target = _evaluate(orow, edge.t0 + _CHECK * (edge.t1 - edge.t0))
         dev = float(np.linalg.norm(_evaluate(row, a0 + _CHECK * (a1 - a0)) - target, axis=1).max())
-        if dev <= 1e-3 * eps:
+        # within what a parameter map is refined to: at I2's 1e-3 eps, a rational piece of another
+        # degree that runs along the side at another speed (fusee: 3.5e-12 from it) was taken
+        # affinely, 4.7e-10 off at the same parameter, and read back as a gap past I2's goal
+        if dev <= _MAP_REL * eps:
             return Member(i, name, a0, a1, 1.0, dev)
     # the curves coincide: three points of the segment on the edge's curve within eps
     pts = _evaluate(row, s0 + np.array([0.25, 0.5, 0.75]) * (s1 - s0))
