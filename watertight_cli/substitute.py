@@ -1630,9 +1630,10 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
             ts_, targets_ = np.array(ts).reshape(-1), np.array(targets).reshape(-1, 3)
             atol, slack = _BEND_REL * diagonal, _BUMP_SLACK * tol.approx_rel * diagonal
             bent = _through(row, long_p.rational, ts_, targets_, atol, tol.max_degree, slack) if ts else None
-            if guides:
+            near = _guide_gap(row if bent is None else bent, guides) if guides else 0.0
+            if near > atol:  # the plain bend (or the row) leaves a guided piece off its curve
                 fit = _through_guided(row, ts_, targets_, guides, atol, tol.max_degree, slack)
-                if fit is not None and fit[1] < _guide_gap(row if bent is None else bent, guides):
+                if fit is not None and fit[1] < near:
                     bent = fit[0]
                     fs.t_guided += 1
             if bent is not None:
