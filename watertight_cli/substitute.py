@@ -1468,11 +1468,16 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
     (two corner ids -> the shared curves between them) is for ``_share_t_sides``."""
     items = []  # (patch index, side name, start uv, end uv)
     ends = []
+    on_edge: dict[tuple[int, int], tuple[int, str, tuple[int, int]]] = {}  # corner ids -> a side on an edge
     for i, (refs, cm) in enumerate(info):
         for name, (_, _, (c0, c1)) in SIDES.items():
             if refs[name] is None:
                 items.append((i, name, cm[c0], cm[c1]))
                 ends.append((labels[(i, c0)], labels[(i, c1)]))
+            elif not refs[name].pole:
+                la, lb = labels[(i, c0)], labels[(i, c1)]
+                if la != lb:
+                    on_edge.setdefault((min(la, lb), max(la, lb)), (i, name, (la, lb)))
     if not items:
         return
     pts = np.array([[*a, *b] for _, _, a, b in items])
@@ -1486,7 +1491,9 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
     patches = fr.patches
     lonely = []
     partners: dict[int, list[tuple[int, bool]]] = {}  # item -> the others with its two corners
-    for ks in by_ends.values():
+    for key, ks in by_ends.items():
+        if key in on_edge and _onto_edge_side(fr, items, ends, ks, on_edge[key], fs, tol, diagonal):
+            continue
         owners = {items[k][0] for k in ks}
         if len(owners) < 2:
             lonely.extend(ks)  # a side with a T-vertex on it, or one of the sides that meet there
@@ -1515,6 +1522,32 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
             _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal, src.factors)
             fs.inner_shared += 1
     _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners, ends, guide)
+
+
+def _onto_edge_side(fr, items, ends, ks: list[int], edge_side: tuple, fs: FaceSubstitution, tol: Tolerances,
+                    diagonal: float) -> bool:
+    """Inner sides ``ks`` that join the same two corners as a side on an edge (``edge_side``: patch,
+    side name, its corner ids) bound a cell between them that is thinner than the joining
+    tolerance (its other two sides collapsed when the corners were unified): the B-rep drops it as
+    a fold, and the patches beyond its inner side then meet the neighbours across the edge
+    directly. So every such side takes the edge side's row, the shared curve, where each lies
+    within the joining tolerance of it at the same parameter (copying moves the patch by no
+    more); returns whether they did. Each sharing the lowest-degree row among themselves instead,
+    they kept the cell's width: ec_turbine face 19, a lens 4.3e-8 wide on the edge with face 12,
+    which was the gap between the faces beyond it."""
+    i, name, (la, lb) = edge_side
+    src = fr.patches[i]
+    eps3 = JOIN_REL * diagonal
+    flips = [ends[k] != (la, lb) for k in ks]
+    if not all(_same_parameter(src, name, fr.patches[items[k][0]], items[k][1], f, None, eps3)
+               for k, f in zip(ks, flips, strict=True)):
+        return False
+    for k, flip in zip(ks, flips, strict=True):
+        row = _row(src.ctrl, name)
+        _copy_row(fr.patches[items[k][0]], items[k][1], row[::-1] if flip else row, src.rational, fs, tol,
+                  diagonal, src.factors)
+        fs.inner_shared += 1
+    return True
 
 
 def _side_uv(p: Patch, name: str, g: np.ndarray) -> np.ndarray:
