@@ -759,3 +759,40 @@ def test_cusps_of_a_real_file_are_cut_into_every_face_of_their_edges():
         for e, x, _ in tail:
             for face, ws in corners[e].items():
                 assert min(abs(w - x) for w in ws) <= 1e-9 * abs(x), (e, x, face)
+
+
+def _degenerate_sides(res) -> list[tuple[int, int, str]]:
+    """(face, patch, side) of every patch side along which S_s x S_t vanishes at 1/4, 1/2 and 3/4."""
+    from watertight_cli.core.triangle import _homogeneous, _point_derivatives
+
+    g = np.array([0.25, 0.5, 0.75])
+    z, o = np.zeros(3), np.ones(3)
+    found = []
+    for fr in res.faces:
+        for k, p in enumerate(fr.patches):
+            H = _homogeneous(p.ctrl, p.rational)
+            size = float(np.ptp((H[..., :3] / H[..., 3:4]).reshape(-1, 3), axis=0).max())
+            for name, (s, t) in {"left": (z, g), "right": (o, g), "bottom": (g, z), "top": (g, o)}.items():
+                _, xs, xt = _point_derivatives(H, s, t)
+                if np.linalg.norm(np.cross(xs, xt), axis=1).max() <= 1e-9 * size**2:
+                    found.append((fr.face, k, name))
+    return found
+
+
+def test_no_patch_side_where_the_jacobian_vanishes_all_along(tmp_path):
+    """A plate with two round holes one above the other: the holes' extremes in u lie on the same
+    two slab lines, and the cell between the holes has a bottom and a top that leave both its
+    rungs tangent to them, so the cell map's S_s runs along each rung all the way up it. Such a
+    cell is cut along a v-iso line (``untrim._tangent_rung_cuts``); without the cut, four sides
+    (two per plane) are degenerate. On gmsh__Block.stp six such strips, 0.0098 wide, got no
+    triangulation from OCCT's mesher."""
+    import cadquery as cq
+
+    from watertight_cli.inspect import inspect
+
+    plate = cq.Workplane("XY").box(20, 40, 2).faces(">Z").workplane().pushPoints([(0, -8), (0, 8)]).hole(6)
+    path = tmp_path / "plate.step"
+    cq.exporters.export(plate, str(path))
+    res = untrim(inspect(str(path), TOL).model, TOL)
+    assert not _degenerate_sides(res)
+    assert not any(fr.problems for fr in res.faces)

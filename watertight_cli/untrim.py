@@ -76,6 +76,9 @@ _NEAR_END = 0.02
 #: how far (x ``ueps_lines``, in u) a piece end may lie from a knot line and still be put on it
 #: when it is within a sliver of it in 3D where it is (``_ends_onto_knots``)
 _KNOT_SNAP = 4.0
+#: a cell's bottom and top both leave a rung with a u-speed under this share of the slab's width
+#: over their parameter: the patch's Jacobian (nearly) vanishes along that rung (``_tangent_rung_cuts``)
+_TANGENT_RUNG = 1e-3
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
@@ -671,6 +674,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
             cells.append([cua, cub, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j])
     if rung_cuts != "none":
+        _tangent_rung_cuts(cells, veps)
         # the cuts made so far end on both rungs of their cells: those ends may fall near the end
         # of a neighbour's rung too (fusee face 37: a vertex cut beside a rung 1.77 long, 0.0086
         # of it from its end, and the bend refused left a free edge)
@@ -759,6 +763,49 @@ def _tail(whole: _Piece, kept: _Piece) -> tuple[int, float, float]:
     """(edge, w at the crossing, w at the tip) of a piece that ``_uncross`` cut to ``kept``."""
     tip_at_hi = kept.H[-1, 0] / kept.H[-1, 2] < whole.H[-1, 0] / whole.H[-1, 2]
     return (whole.edge, kept.w1, whole.w1) if tip_at_hi else (whole.edge, kept.w0, whole.w0)
+
+
+def _u_speeds(H: np.ndarray) -> tuple[float, float]:
+    """|du/ds| of a piece (homogeneous [X, Y, W], oriented with u increasing) at s = 0 and s = 1."""
+    k = H.shape[0] - 1
+    if k < 1:
+        return 0.0, 0.0
+    (x0, _, w0), (x1, _, w1) = H[0], H[1]
+    (y0, _, v0), (y1, _, v1) = H[-1], H[-2]
+    return abs(k * (x1 * w0 - x0 * w1) / w0**2), abs(k * (y0 * v1 - y1 * v0) / v0**2)
+
+
+def _tangent_rung_cuts(cells: list, veps: float) -> None:
+    """Cut a cell without cuts along a v-iso line where its bottom and top both leave one of its
+    rungs tangent to it (their u-speed there under ``_TANGENT_RUNG`` x the slab's width over their
+    parameter): the cell map (1 - t) B(s) + t T(s) then has S_s along the rung all the way up it,
+    and the patch's Jacobian vanishes on that whole side. OCCT's mesher leaves such a face
+    without a triangulation (gmsh__Block.stp face 410, a plane with two round holes whose lowest
+    points lie on one slab line: the cell between them, 0.0098 wide and 16 long, six times over).
+    Each half has the straight cut as its other side and a Jacobian that vanishes at one corner
+    only. The cut goes where a neighbouring cell on that slab line already has one (no new
+    T-vertex there), else half way between the pieces; a cell whose pieces overlap in v has no
+    line between them and stays as it is."""
+    by_line: dict[int, list[float]] = {}
+    for cell in cells:
+        for k in (0, 1):
+            by_line.setdefault(cell[9] + k, []).extend(cell[8])
+    for cell in cells:
+        ua, ub, bside, tside, _, _, bmax, tmin, knots, j = cell
+        if knots or tmin - bmax <= 4.0 * veps or ub <= ua:
+            continue
+        width = ub - ua
+        sb, st = _u_speeds(bside.H), _u_speeds(tside.H)
+        for k in (0, 1):
+            if max(sb[k], st[k]) > _TANGENT_RUNG * width:
+                continue
+            lo, hi, mid = bmax + veps, tmin - veps, 0.5 * (bmax + tmin)
+            near = [v for v in by_line.get(j + k, ()) if lo < v < hi]
+            c = min(near, key=lambda v: abs(v - mid)) if near else mid
+            knots.append(c)
+            for line in (j, j + 1):
+                by_line.setdefault(line, []).append(c)
+            break
 
 
 def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
