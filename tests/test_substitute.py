@@ -616,11 +616,14 @@ def test_u_joint_closes_where_pcurve_ends_sit_near_rung_ends(tmp_path):
     input's 1.9e-5 gap, and no bend within the degree budget is that local. Stage 1 now cuts the
     long cell there. I2's goal was missed at its 12 cusps, where a wedge face narrows to nothing
     between two tangent edges and the faces beyond met each other 2.6e-9 apart; the cusps are tails
-    now (``untrim.cusp_tails``) and every invariant holds. About two minutes."""
+    now (``untrim.cusp_tails``) and every invariant holds. Four triangles 7e-7 wide beside a knot
+    line (a plan cut a sliver from it) went back to being triangles, which no mesh closes; the cut
+    is dropped now (``untrim._sliver_cuts_dropped``) and none is kept. About two minutes."""
     from watertight_cli.convert import convert_file
 
     rep = convert_file(str(corpus_path("gmsh__U_Joint_2.stp")), str(tmp_path / "o.step"), Tolerances())
     assert rep["after"]["free_edges"] == 0
+    assert rep["after"]["triangles_kept"] == 0
     assert rep["after"]["gap_max_relative"] < 1e-12
     assert all(rep["invariants"].values()), rep["invariants"]
 
@@ -1028,3 +1031,25 @@ def test_inner_side_of_a_lens_on_an_edge_takes_the_edge_curve():
     assert np.array_equal(patches[1].ctrl[:, 0], edge_row)  # the side beyond it
     assert np.array_equal(patches[1].ctrl[:, -1], far_row)  # nothing else moved
     assert fs.inner_shared == 2
+
+
+def test_a_rung_a_hair_past_its_piece_takes_the_edge_through_the_next_piece():
+    """Where stage 1 dropped a plan cut a sliver beside a knot line, the cell's rung on the edge
+    runs from the knot line, a hair past the end of the piece that ends at the plan's parameter,
+    into the next piece of the same edge: the rung still lies on the edge (``IsoPieces.pair``).
+    Without it, U_Joint_2 had 8 free edges there."""
+    from types import SimpleNamespace
+
+    def piece(v0, v1, w0, w1):
+        return SimpleNamespace(edge=7, H=np.array([[0.0, v0, 1.0], [0.0, v1, 1.0]]), w0=w0, w1=w1,
+                               degenerate=False)
+
+    # the edge runs w = -v along u = 0, cut by the plan at v = 0.5 + 3e-8
+    cut = 0.5 + 3e-8
+    pieces = [piece(0.9, cut, -0.9, -cut), piece(cut, 0.1, -cut, -0.1)]
+    eps = (1e-9, 1e-10)
+    ref = S._rung_ref(pieces, np.array([0.0, 0.5]), np.array([0.0, 0.9]), eps)
+    assert ref is not None and ref.edge == 7 and ref.along is None
+    assert ref.wa == pytest.approx(-0.5, abs=1e-15) and ref.wb == pytest.approx(-0.9, abs=1e-15)
+    # a rung on no piece's line finds none
+    assert S._rung_ref(pieces, np.array([0.3, 0.5]), np.array([0.3, 0.9]), eps) is None

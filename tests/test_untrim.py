@@ -796,3 +796,24 @@ def test_no_patch_side_where_the_jacobian_vanishes_all_along(tmp_path):
     res = untrim(inspect(str(path), TOL).model, TOL)
     assert not _degenerate_sides(res)
     assert not any(fr.problems for fr in res.faces)
+
+
+def test_a_plan_cut_a_sliver_from_a_knot_line_is_dropped():
+    """A plan cut (an edge plan's parameter, not a vertex of the face) whose line stands within a
+    sliver of a knot line on both rungs of its cell, but farther than the distance at which stage 2
+    makes corners one, would leave a cell too thin for anything: U_Joint_2 face 103 had one 7.1e-7
+    wide beside its knot line (the neighbour's knot, which this face's pcurve put 2.8e-8 off in v),
+    kept as a triangle. The knot line stays; vertices, thinner cells and farther cuts are kept."""
+    from types import SimpleNamespace
+
+    from watertight_cli.untrim import _sliver_cuts_dropped
+
+    diagonal = 100.0  # sliver 1e-6, merge distance 4e-7
+    face = SimpleNamespace(surface=SimpleNamespace(
+        evaluate=lambda uv: np.column_stack([uv[:, 0], uv[:, 1], np.zeros(len(uv))])))
+    g = SimpleNamespace(sliver=TOL.sliver_rel * diagonal, diagonal=diagonal)
+    left, right = (np.array([0.0, 0.0]), np.array([0.0, 1.0])), (np.array([1.0, 0.0]), np.array([1.0, 1.0]))
+    thin, hair, wide = 0.5 + 7e-7, 0.5 - 2e-7, 0.5 + 5e-6
+    cuts = [0.5, thin, hair, wide]
+    assert _sliver_cuts_dropped(cuts, {0.5}, {thin, hair, wide}, face, left, right, g) == [0.5, hair, wide]
+    assert _sliver_cuts_dropped(cuts, {0.5}, {hair, wide}, face, left, right, g) == cuts  # thin: a vertex

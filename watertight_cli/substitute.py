@@ -675,6 +675,27 @@ class IsoPieces:
         k = int(np.argmax(ok))
         return k if ok[k] else None
 
+    def pair(self, a: np.ndarray, b: np.ndarray, eps: tuple[float, float]) -> tuple[int, int] | None:
+        """Two pieces of one edge that meet end to end on the u-iso line of the rung from ``a`` to
+        ``b``, the first holding ``a`` and the second ``b`` (when no one piece holds it): stage 1
+        dropped a plan cut a sliver beside a knot line (``untrim._sliver_cuts_dropped``), so the
+        rung ends at the knot line, a hair past the piece that ends at the plan's parameter."""
+        if not self.pieces:
+            return None
+        du = np.maximum(np.maximum(np.abs(a[0] - self.u0), np.abs(b[0] - self.u0)), np.abs(a[0] - self.u1))
+        line = du <= 2 * eps[0]
+        if not line.any():
+            return None
+        has = [np.flatnonzero(line & (x[1] >= self.vlo - eps[1]) & (x[1] <= self.vhi + eps[1]))
+               for x in (a, b)]
+        for i in has[0]:
+            for j in has[1]:
+                if i != j and self.pieces[i].edge == self.pieces[j].edge and (
+                        np.abs(self.uv[i, 1] - self.uv[j, 0]).max() <= 0.0
+                        or np.abs(self.uv[i, 0] - self.uv[j, 1]).max() <= 0.0):
+                    return int(i), int(j)
+        return None
+
 
 def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], length: float = 0.0,
               slide: float = 0.0) -> _Ref | None:
@@ -689,7 +710,17 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], le
     table = pieces if isinstance(pieces, IsoPieces) else IsoPieces(pieces)
     k = table.first(a, b, eps)
     if k is None:
-        return None
+        two = table.pair(a, b, eps)
+        if two is None:
+            return None
+        ws = []
+        for x, m in zip((a, b), two, strict=True):
+            p = table.pieces[m]
+            bent = p.H.shape[0] > 2 and not _affine_enough(p.H, abs(b[1] - a[1]), eps[1], length, slide)
+            if p.degenerate or bent:
+                return None
+            ws.append(p.w0 + _t_at_u(p.H, float(x[1]), axis=1) * (p.w1 - p.w0))
+        return _Ref(table.pieces[two[0]].edge, ws[0], ws[1])
     p, uv = table.pieces[k], table.uv[k]
     if p.degenerate:
         return _Ref(p.edge, p.w0, p.w1, pole=True)

@@ -376,6 +376,7 @@ class _FaceGeometry:
         # slab lines closer than a sliver merge (see Tolerances.sliver_rel)
         self.ueps_lines = max(self.ueps, tol.sliver_rel * diagonal / su if su > 0 else 0.0)
         self.sliver = tol.sliver_rel * diagonal
+        self.diagonal = diagonal
         self.thin = max(tol.thin_rel * diagonal, self.sliver)
         self.breaks = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
 
@@ -624,12 +625,17 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     ranges = {ce.edge: (min(ce.first, ce.last), max(ce.first, ce.last))
               for lp in face.loops for ce in lp.coedges}
     vertex_ends = []
+    plan_only: set[float] = set()  # v of the ends that are plan cuts, not vertices of the face
+    at_vertex: set[float] = set()
     for q in fr.iso_pieces:
         lo, hi = ranges.get(q.edge, (np.inf, -np.inf))
         tol_w = 1e-9 * max(hi - lo, 1e-300)
         for k, w in ((0, q.w0), (-1, q.w1)):
-            if rung_cuts == "plan" or abs(w - lo) <= tol_w or abs(w - hi) <= tol_w:
+            vertex = abs(w - lo) <= tol_w or abs(w - hi) <= tol_w
+            if rung_cuts == "plan" or vertex:
                 vertex_ends.append((q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]))
+                (plan_only if not vertex else at_vertex).add(float(q.H[k, 1] / q.H[k, 2]))
+    plan_only -= at_vertex
     vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
     # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
     # inside a neighbouring cell's rung a hair from its end: see _NEAR_END. A piece of slab j runs
@@ -671,7 +677,10 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             # of bottom and top), which may stand a sliver off the slab lines
             b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
             t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
-            knots = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
+            cuts = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
+            if len(cuts) > len(knots):
+                cuts = _sliver_cuts_dropped(cuts, set(knots), plan_only, face, (b0, t0), (b1, t1), g)
+            knots = cuts
             cells.append([cua, cub, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j])
     if rung_cuts != "none":
         _tangent_rung_cuts(cells, veps)
@@ -912,6 +921,48 @@ def _vertex_cuts(knots: list[float], ends: np.ndarray, left, right, bmin: float,
         on = (np.abs(ends[:, 0] - b[0]) <= 2 * ueps) & (v > lo + veps) & (v < hi - veps)
         extra.extend(float(x) for x in v[on] if bmin + veps < x < tmax - veps)
     return _merge_cuts(knots, extra, veps) if extra else knots
+
+
+def _sliver_cuts_dropped(cuts: list[float], knots: set[float], plan_only: set[float], face: Face, left,
+                         right, g: _FaceGeometry) -> list[float]:
+    """A cell's cuts without those at an edge plan's parameter (``plan_only``: not at a vertex of
+    the face) that stand within a sliver (``Tolerances.sliver_rel``, in 3D) of a knot line, or of
+    a cut kept before them, on both rungs: the cell between two such straight lines would be a
+    sliver all along. Only cuts farther than the distance at which stage 2 makes corners one
+    (``topology.MERGE_REL``) somewhere: thinner cells are dropped as flat, their corners joined,
+    and dropping their cuts as well left U_Joint_2 with 8 free edges (as did dropping cuts at a
+    vertex: a T-vertex a hair from the corner beside it). The knot line
+    must stay (a patch spans no knot); the vertex's corner then lies on it, and stage 2 puts that
+    corner at the plan's parameter (``substitute._snap_params``). The test in uv (``veps``, from
+    the surface's largest speed) misses this where the surface is slow: U_Joint_2 face 103 had a
+    cell 2.8e-8 high in v beside a knot line, 6.5e-7 wide in 3D at most, which stage 2 could only
+    keep as a triangle (a plan cut from the neighbouring face, whose pcurve puts that parameter a
+    hair off this face's knot)."""
+    if not knots:
+        return cuts
+    span = float(max(np.ptp([p[1] for p in (*left, *right)]), 1e-300))
+    # only cuts this close in v to a knot line can be a sliver from it (a cheap first test)
+    near = [c for c in sorted(cuts)
+            if c in plan_only and c not in knots and min(abs(c - k) for k in knots) <= 1e-3 * span]
+    if not near:
+        return cuts
+
+    def points(c: float) -> np.ndarray:
+        return face.surface.evaluate(np.array([[_rung_u(*left, c), c], [_rung_u(*right, c), c]]))
+
+    from .topology import MERGE_REL
+
+    merge = MERGE_REL * g.diagonal
+    lines = [points(c) for c in knots]
+    dropped = set()
+    for c in near:
+        x = points(c)
+        d = [np.linalg.norm(x - y, axis=1) for y in lines]
+        if any(np.all(e <= g.sliver) and np.any(e > merge) for e in d):
+            dropped.add(c)
+        else:
+            lines.append(x)
+    return [c for c in cuts if c not in dropped]
 
 
 def _rung_u(b: np.ndarray, t: np.ndarray, c: float) -> float:
