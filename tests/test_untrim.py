@@ -507,7 +507,7 @@ def test_pcurve_end_near_a_rung_end_cuts_the_cells_only_there():
         left = (np.array([u0, bottom[0]]), np.array([u0, top[0]]))
         right = (np.array([u1, bottom[1]]), np.array([u1, top[1]]))
         return [u0, u1, None, None, left, right, max(bottom) if bmax is None else bmax,
-                min(top) if tmin is None else tmin, [], j]
+                min(top) if tmin is None else tmin, [], j, j + 1]
 
     # three slabs side by side, 0..1 in v; an end on line 1 (between slab 0 and slab 1) near v = 1
     cells = [cell(0, 0.0, 1.0, (0.0, 0.0), (1.0, 1.0)), cell(1, 1.0, 2.0, (0.0, 0.0), (1.0, 1.0)),
@@ -817,3 +817,45 @@ def test_a_plan_cut_a_sliver_from_a_knot_line_is_dropped():
     cuts = [0.5, thin, hair, wide]
     assert _sliver_cuts_dropped(cuts, {0.5}, {thin, hair, wide}, face, left, right, g) == [0.5, hair, wide]
     assert _sliver_cuts_dropped(cuts, {0.5}, {hair, wide}, face, left, right, g) == cuts  # thin: a vertex
+
+
+def _square_with_hole(bottom_cut: float, top_cut: float):
+    """The unit square face of ``_square_with_cuts`` with a rectangular hole [0.3, 0.7] x [0.4, 0.6]
+    whose lower side is cut at u = ``bottom_cut`` and its upper side at ``top_cut``."""
+    from watertight_cli.untrim import _Piece
+
+    face, pieces = _square_with_cuts(0.5, 0.5)
+    pieces = [p for p in pieces if not np.array_equal(p.H[0, :2], [0.5, 0]) and not np.array_equal(
+        p.H[0, :2], [0.5, 1])]  # the outer sides uncut again: (0, 0) -> (1, 0), (1, 1) -> (0, 1)
+    pieces = [replace(p, H=np.array([p.H[0], [1.0 - p.H[0, 0], p.H[0, 1], 1.0]])) if p.H[0, 1] == p.H[1, 1]
+              else p for p in pieces]
+    hole = [(0.3, 0.4), (0.3, 0.6), (top_cut, 0.6), (0.7, 0.6), (0.7, 0.4), (bottom_cut, 0.4)]  # clockwise
+    pieces += [_Piece(np.array([[*a, 1.0], [*b, 1.0]]), 10 + k, 0.0, 1.0, False)
+               for k, (a, b) in enumerate(zip(hole, hole[1:] + hole[:1], strict=True))]
+    return face, pieces
+
+
+def test_a_cell_runs_through_a_slab_line_that_only_other_pieces_end_on():
+    """bspline_boolean's face with a hole: the edge plan cut the hole's upper and lower halves at
+    different u, and every cut made a slab line across the whole face, so the cells above and below
+    the hole were cut where nothing on their own bottom or top ends (156 of its 546 patches more
+    than 1000 times longer than wide). A cell now runs through such a line: the region between
+    the same two pieces on both sides of it, with no piece end on it between them, is one cell."""
+    from watertight_cli.untrim import FaceResult, _cells, _FaceGeometry
+
+    face, pieces = _square_with_hole(0.45, 0.55)
+    g = _FaceGeometry(face, 1.0, TOL)
+    cells = list(_cells(face, pieces, g, FaceResult(0)))
+    spans = sorted((round(ua, 9), round(ub, 9), round(float(bot.H[0, 1] / bot.H[0, 2]), 9))
+                   for ua, ub, bot, _ in cells)
+    # beside the hole its vertical sides cut the cells (rungs along the edges); below it the cells
+    # are cut only at the lower side's cut (0.45), above it only at the upper side's (0.55)
+    assert spans == [(0.0, 0.3, 0.0), (0.0, 0.3, 0.4), (0.0, 0.3, 0.6), (0.3, 0.45, 0.0), (0.3, 0.55, 0.6),
+                     (0.45, 0.7, 0.0), (0.55, 0.7, 0.6), (0.7, 1.0, 0.0), (0.7, 1.0, 0.4), (0.7, 1.0, 0.6)]
+    # the cells tile the face: their uv areas (straight sides) add up to the square less the hole
+    area = sum((ub - ua) * 0.5 * ((top.H[0, 1] - bot.H[0, 1]) + (top.H[-1, 1] - bot.H[-1, 1]))
+               for ua, ub, bot, top in cells)
+    assert area == pytest.approx(1.0 - 0.4 * 0.2, abs=1e-12)
+    # cuts at the same u on both halves make no cell that spans lines
+    cells = list(_cells(face, _square_with_hole(0.5, 0.5)[1], g, FaceResult(0)))
+    assert sorted(round(ub - ua, 9) for ua, ub, _, _ in cells) == [0.2] * 4 + [0.3] * 6

@@ -11,7 +11,11 @@ The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
    sorted by v, consecutive pairs (even-odd rule) bound the regions of the face. Interior v-knot lines
    cut each region further, so every cell lies in one Bezier span of the surface and is bounded by two
    u-iso rungs and a bottom and a top side, each a pcurve piece or a v-iso line. The slab lines also cut
-   pieces of other edges; those cuts are local to the face (recorded as ``local_cuts``).
+   pieces of other edges; those cuts are local to the face (recorded as ``local_cuts``). A line that no
+   piece end between a region's bottom and top put there (another pcurve's end elsewhere in u), and that
+   is no knot line, does not cut that region: its bottom and top run through it, and the cell spans
+   several slabs (``_through_lines``), so ends of pcurves that fall close in u do not chop the whole
+   face into strips.
 3. **Maps.** A cell whose bottom and top are iso-lines is a sub-box: de Casteljau/blossoming. Otherwise
    the ruled map phi(s, t) = (1 - t) B(s) + t T(s) joins the bottom B and the top T, each in its own
    (pcurve = edge) parameter, so the trimming side keeps the edge's parameter. S o phi is composed
@@ -598,8 +602,12 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     at = [(_nearest(first, float(p.H[0, 0] / p.H[0, 2])), _nearest(first, float(p.H[-1, 0] / p.H[-1, 2])))
           for p in pieces]
     lines, index = _merge_thin(first, knots, face, g, *_thin_merge_rules(first, pieces, at, knots))
-    slabs: list[list[_Piece]] = [[] for _ in range(len(lines) - 1)]
+    crossing: list[_Piece] = []  # the pieces that run from one slab line to another, u increasing
+    spans: list[tuple[int, int]] = []  # their first and last slab line
+    ends_on: dict[int, list[float]] = {}  # slab line -> v of every piece end on it
     for p, ends_at in zip(pieces, at, strict=True):
+        for k in (0, -1):
+            ends_on.setdefault(int(index[ends_at[k]]), []).append(float(p.H[k, 1] / p.H[k, 2]))
         p = _orient_u(p)
         a, b = p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2]
         # oriented with u increasing, the piece runs from the lower of its two lines
@@ -611,13 +619,15 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             else:
                 fr.snapped += b - a > 0
             continue  # a u-iso piece: it lies on a slab line
-        rest = p
-        for k in range(i + 1, j):
-            t = _t_at_u(rest.H, float(lines[k]))
-            left, rest = _split(rest, t)
-            fr.local_cuts += 1
-            slabs[k - 1].append(left)
-        slabs[j - 1].append(rest)
+        crossing.append(p)
+        spans.append((i, j))
+    parts, pairs = _slab_pairs(crossing, spans, lines, set(), face)
+    through = _through_lines(parts, pairs, lines, knots, ends_on, veps)
+    if through:
+        joined = _slab_pairs(crossing, spans, lines, through, face)
+        if joined is not None:
+            parts, pairs = joined
+    fr.local_cuts += len(parts) - len(crossing)
     # rung cuts: a cell whose rung runs along a u-iso boundary piece is cut by v-iso lines at that
     # piece's ends (the edge plan's parameters and the edge's vertices), so each rung lies on one
     # plan piece and stage 2 can put that piece's curve into it. ``rung_cuts`` "vertices" cuts
@@ -638,61 +648,124 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     plan_only -= at_vertex
     vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
     # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
-    # inside a neighbouring cell's rung a hair from its end: see _NEAR_END. A piece of slab j runs
-    # from line j (its first point, k = 0) to line j + 1 (its last, k = 1)
+    # inside a neighbouring cell's rung a hair from its end: see _NEAR_END. A part from line a to
+    # line b has its first point (k = 0) on line a and its last (k = 1) on line b
     near_ends = [] if rung_cuts == "none" else [
-        (j + k, float(q.H[-k, 1] / q.H[-k, 2])) for j, sp in enumerate(slabs) for q in sp for k in (0, 1)]
+        (line, float(q.H[-k, 1] / q.H[-k, 2])) for _, a, b, q in parts for k, line in ((0, a), (1, b))]
     cells = []
-    for j, sp in enumerate(slabs):
-        if not sp:
-            continue
-        ua, ubb = float(lines[j]), float(lines[j + 1])
-        um = 0.5 * (ua + ubb)
-        vs = [float(_eval(p.H, _t_at_u(p.H, um))[0, 1]) for p in sp]
-        order = np.argsort(vs, kind="stable")
-        if len(sp) % 2:
-            raise UntrimError(
-                f"face {face.index}: the trimming loops do not close in the parameter domain "
-                f"({len(sp)} crossings of u = {um:.6g})"
-            )
-        for k in range(0, len(sp), 2):
-            bot, top = sp[order[k]], sp[order[k + 1]]
-            cua, cub = ua, ubb
-            uncrossed = _uncross(bot, top, g)
-            if uncrossed is not None:
-                fr.crossings.append(tuple(_tail(p, q) for p, q in zip((bot, top), uncrossed, strict=True)))
-                bot, top = uncrossed
-                fr.slivers += 1  # the inverted strip beyond the crossing is left out
-                cua, cub = float(bot.H[0, 0] / bot.H[0, 2]), float(bot.H[-1, 0] / bot.H[-1, 2])
-            bside, tside = _as_side(bot, veps), _as_side(top, veps)
-            for sd in (bside, tside):
-                fr.snapped += sd.iso and float(np.ptp(sd.H[:, 1] / sd.H[:, 2])) > 0
-            # A knot line c cuts the region iff min B < c < max T. Pieces are monotone in v (cut at
-            # their v-extrema), so their ends give their v-range exactly (the control polygon can
-            # overshoot it), and they never cross a knot line: c may touch B or T at one end only,
-            # which leaves a cell with one collapsed rung.
-            bv, tv = (sorted(float(q.H[i, 1] / q.H[i, 2]) for i in (0, -1)) for q in (bot, top))
-            knots = [float(c) for c in vb[1:-1] if bv[0] + veps < c < tv[1] - veps]
-            # the knot lines run between the cell's rungs (the straight segments joining the ends
-            # of bottom and top), which may stand a sliver off the slab lines
-            b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
-            t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
-            cuts = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
-            if len(cuts) > len(knots):
-                cuts = _sliver_cuts_dropped(cuts, set(knots), plan_only, face, (b0, t0), (b1, t1), g)
-            knots = cuts
-            cells.append([cua, cub, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j])
+    for j, jr, x, y in pairs:
+        bot, top = parts[x][3], parts[y][3]
+        cua, cub = float(lines[j]), float(lines[jr])
+        uncrossed = _uncross(bot, top, g)
+        if uncrossed is not None:
+            fr.crossings.append(tuple(_tail(p, q) for p, q in zip((bot, top), uncrossed, strict=True)))
+            bot, top = uncrossed
+            fr.slivers += 1  # the inverted strip beyond the crossing is left out
+            cua, cub = float(bot.H[0, 0] / bot.H[0, 2]), float(bot.H[-1, 0] / bot.H[-1, 2])
+        bside, tside = _as_side(bot, veps), _as_side(top, veps)
+        for sd in (bside, tside):
+            fr.snapped += sd.iso and float(np.ptp(sd.H[:, 1] / sd.H[:, 2])) > 0
+        # A knot line c cuts the region iff min B < c < max T. Pieces are monotone in v (cut at
+        # their v-extrema), so their ends give their v-range exactly (the control polygon can
+        # overshoot it), and they never cross a knot line: c may touch B or T at one end only,
+        # which leaves a cell with one collapsed rung.
+        bv, tv = (sorted(float(q.H[i, 1] / q.H[i, 2]) for i in (0, -1)) for q in (bot, top))
+        knots = [float(c) for c in vb[1:-1] if bv[0] + veps < c < tv[1] - veps]
+        # the knot lines run between the cell's rungs (the straight segments joining the ends
+        # of bottom and top), which may stand a sliver off the slab lines
+        b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
+        t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
+        cuts = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
+        if len(cuts) > len(knots):
+            cuts = _sliver_cuts_dropped(cuts, set(knots), plan_only, face, (b0, t0), (b1, t1), g)
+        knots = cuts
+        cells.append([cua, cub, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j, jr])
     if rung_cuts != "none":
         _tangent_rung_cuts(cells, veps)
         # the cuts made so far end on both rungs of their cells: those ends may fall near the end
         # of a neighbour's rung too (fusee face 37: a vertex cut beside a rung 1.77 long, 0.0086
         # of it from its end, and the bend refused left a free edge)
-        near_ends += [(c[9] + k, v) for c in cells for v in c[8] for k in (0, 1)]
+        near_ends += [(line, v) for c in cells for v in c[8] for line in (c[9], c[10])]
     _align_rungs(cells, near_ends, veps)
-    for ua, ubb, bside, tside, left, right, _, _, knots, _ in cells:
+    for ua, ubb, bside, tside, left, right, _, _, knots, _, _ in cells:
         sides = ([bside] + [_iso_side(_rung_u(*left, c), _rung_u(*right, c), c) for c in knots] + [tside])
         for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
             yield ua, ubb, s0, s1
+
+
+def _slab_pairs(pieces: list[_Piece], spans: list[tuple[int, int]], lines: np.ndarray,
+                through: set[tuple[int, int]], face: Face):
+    """The pieces cut at the slab lines they cross, and the cells between them.
+
+    Each piece is cut at every line strictly between its first and last (``spans``), except at the
+    (piece, line) pairs in ``through``. Returns (parts, pairs): parts as (piece index, first line,
+    last line, piece), pairs as (first line, last line, bottom part, top part), one per cell, found
+    slab by slab by sorting the parts over the slab by v (even-odd rule). A cell spans several slabs
+    where its bottom and top both run through the lines between. None when that does not hold:
+    two parts paired over one slab that do not span the same lines (``through`` was not taken by
+    both pieces of a cell)."""
+    parts: list[tuple[int, int, int, _Piece]] = []
+    for n, (p, (i, j)) in enumerate(zip(pieces, spans, strict=True)):
+        rest, a = p, i
+        for k in range(i + 1, j):
+            if (n, k) in through:
+                continue
+            left, rest = _split(rest, _t_at_u(rest.H, float(lines[k])))
+            parts.append((n, a, k, left))
+            a = k
+        parts.append((n, a, j, rest))
+    active: list[list[int]] = [[] for _ in range(len(lines) - 1)]
+    for x, (_, a, b, _) in enumerate(parts):
+        for s in range(a, b):
+            active[s].append(x)
+    pairs: list[tuple[int, int, int, int]] = []
+    top_of: dict[int, int] = {}
+    for s, act in enumerate(active):
+        if not act:
+            continue
+        um = 0.5 * (float(lines[s]) + float(lines[s + 1]))
+        if len(act) % 2:
+            raise UntrimError(
+                f"face {face.index}: the trimming loops do not close in the parameter domain "
+                f"({len(act)} crossings of u = {um:.6g})"
+            )
+        vs = [float(_eval(parts[x][3].H, _t_at_u(parts[x][3].H, um))[0, 1]) for x in act]
+        order = np.argsort(vs, kind="stable")
+        for k in range(0, len(act), 2):
+            x, y = act[order[k]], act[order[k + 1]]
+            if parts[x][1] == s and parts[y][1] == s and parts[x][2] == parts[y][2]:
+                pairs.append((s, parts[x][2], x, y))
+                top_of[x] = y
+            elif top_of.get(x) != y or parts[x][1] == s:
+                return None
+    return parts, pairs
+
+
+def _through_lines(parts, pairs, lines: np.ndarray, knots: set[float], ends_on: dict[int, list[float]],
+                   veps: float) -> set[tuple[int, int]]:
+    """(piece, slab line) pairs at which a piece need not be cut: where the cells on both sides of
+    the line lie between the same two pieces and no piece end (a vertex, a plan parameter, an
+    extremum, an iso piece) lies on the line between them, the two cells are one region, and the
+    line, which some other piece's end put there, only cut it.
+
+    Joined, they make one cell. Cut, they made slab-wide strips wherever the ends of two pcurves
+    of a face fall close in u (bspline_boolean's face with a hole: the edge plan's parameters on
+    the hole's upper and lower halves cut the whole face, 156 of its 546 patches more than 1000
+    times longer than wide), and each cut put a corner on the edges above and below, a T-vertex on
+    their neighbours. Knot lines cut every cell (a patch lies in one span)."""
+    start = {(a, parts[x][0]): (b, x, y) for a, b, x, y in pairs}
+    through: set[tuple[int, int]] = set()
+    for _, k, x, y in pairs:
+        nxt = start.get((k, parts[x][0]))
+        if nxt is None or float(lines[k]) in knots or parts[nxt[2]][0] != parts[y][0]:
+            continue
+        vb = float(parts[x][3].H[-1, 1] / parts[x][3].H[-1, 2])
+        vt = float(parts[y][3].H[-1, 1] / parts[y][3].H[-1, 2])
+        lo, hi = min(vb, vt) - veps, max(vb, vt) + veps
+        if any(lo <= v <= hi for v in ends_on.get(k, ())):
+            continue
+        through.update(((parts[x][0], k), (parts[y][0], k)))
+    return through
 
 
 # where _uncross looks for a crossing: evenly, and geometrically closer to either end (the
@@ -797,10 +870,10 @@ def _tangent_rung_cuts(cells: list, veps: float) -> None:
     line between them and stays as it is."""
     by_line: dict[int, list[float]] = {}
     for cell in cells:
-        for k in (0, 1):
-            by_line.setdefault(cell[9] + k, []).extend(cell[8])
+        for line in (cell[9], cell[10]):
+            by_line.setdefault(line, []).extend(cell[8])
     for cell in cells:
-        ua, ub, bside, tside, _, _, bmax, tmin, knots, j = cell
+        ua, ub, bside, tside, _, _, bmax, tmin, knots, j, jr = cell
         if knots or tmin - bmax <= 4.0 * veps or ub <= ua:
             continue
         width = ub - ua
@@ -809,10 +882,10 @@ def _tangent_rung_cuts(cells: list, veps: float) -> None:
             if max(sb[k], st[k]) > _TANGENT_RUNG * width:
                 continue
             lo, hi, mid = bmax + veps, tmin - veps, 0.5 * (bmax + tmin)
-            near = [v for v in by_line.get(j + k, ()) if lo < v < hi]
+            near = [v for v in by_line.get((j, jr)[k], ()) if lo < v < hi]
             c = min(near, key=lambda v: abs(v - mid)) if near else mid
             knots.append(c)
-            for line in (j, j + 1):
+            for line in (j, jr):
                 by_line.setdefault(line, []).append(c)
             break
 
@@ -834,10 +907,11 @@ def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> Non
     in turn: the cuts spread from cell to cell until none is needed. Points are matched to rungs by
     their slab line, not by their u: a slab narrower than the lines' clustering distance would
     otherwise lend its corners to the rungs of the line beside it. ``cells`` holds [ua, ub, bottom,
-    top, left rung, right rung, highest bottom v, lowest top v, cuts, slab index]."""
+    top, left rung, right rung, highest bottom v, lowest top v, cuts, left slab line, right slab
+    line]."""
     on_line: dict[int, list[int]] = {}
     for i, cell in enumerate(cells):
-        for line in (cell[9], cell[9] + 1):
+        for line in (cell[9], cell[10]):
             on_line.setdefault(line, []).append(i)
     pending = ends
     for _ in range(4 * len(cells) + 1):
@@ -850,9 +924,9 @@ def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> Non
         subs = []
         pieces: dict[tuple[int, int], list[tuple[float, float]]] = {}
         for i in todo:
-            left, right, _, _, cuts, j = cells[i][4:]
+            left, right, _, _, cuts, j, jr = cells[i][4:]
             sub = []
-            for line, side, (b, t) in ((j, 1, left), (j + 1, 0, right)):
+            for line, side, (b, t) in ((j, 1, left), (jr, 0, right)):
                 lo, hi = min(b[1], t[1]), max(b[1], t[1])
                 if line not in by_line or hi - lo <= veps:
                     continue
@@ -888,7 +962,7 @@ def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> Non
             extra = [v for v in extra if bmax + veps < v < tmin - veps]
             if extra:
                 cuts = _merge_cuts(knots, extra, veps)
-                pending.extend((line, c) for c in set(cuts) - set(knots) for line in (cell[9], cell[9] + 1))
+                pending.extend((line, c) for c in set(cuts) - set(knots) for line in (cell[9], cell[10]))
                 cell[8] = cuts
         if not pending:
             return
