@@ -667,13 +667,13 @@ def test_wing_fuselage_is_watertight_with_every_invariant(tmp_path):
     u = 0 by 1e-4) is decomposed turned, which shares every rung along its edges (717 free edges
     before); a sliver cell whose two rungs took one edge's curve is a fold and is dropped, and a
     lens in a cusp of face 9 is made again with its collapsed sides opposite (``topology.folded``,
-    ``topology.lens``): both solids, no free edge, every face untrimmed Bezier, a gap of 3.5e-13 of
-    the diagonal. About five minutes."""
+    ``topology.lens``; since cells run through slab lines, 5f48509, that cusp has no lens left):
+    both solids, no free edge, every face untrimmed Bezier, every invariant. About five minutes."""
     from watertight_cli.convert import convert_file
 
     rep = convert_file(str(corpus_path("gmsh__wing_fuselage.step")), str(tmp_path / "o.step"), Tolerances())
     assert rep["after"]["free_edges"] == 0 and rep["after"]["solids"] == 2
-    assert rep["after"]["folds_dropped"] >= 1 and rep["after"]["lenses_remade"] >= 1
+    assert rep["after"]["folds_dropped"] >= 1
     assert all(rep["invariants"].values()), rep["invariants"]
 
 
