@@ -857,3 +857,31 @@ def test_a_cell_runs_through_a_slab_line_that_only_other_pieces_end_on():
     # cuts at the same u on both halves make no cell that spans lines
     cells = list(_cells(face, _square_with_hole(0.5, 0.5)[1], g, FaceResult(0)))
     assert sorted(round(ub - ua, 9) for ua, ub, _, _ in cells) == [0.2] * 4 + [0.3] * 6
+
+
+def test_plan_cuts_that_end_strips_are_left_out(converted):
+    """bspline_boolean's faces: plan cuts that only a neighbour needs stood close in u to a knot
+    line or a vertex, and each made a strip across its slab (face 0: 19 of 176 patches more than 500
+    times longer than wide, one 0.04 x 75 beside its knot line u = 0.25). Those cuts are left out
+    of the face where that leaves fewer strips: its side runs through them (the neighbour's corner
+    is a T-vertex on it). The faces keep every cut they need themselves, and stage 2 fits no curve
+    with a break at a cut some face left out."""
+    from watertight_cli.untrim import _droppable_cuts, _face_or_problem, _FaceGeometry, _strips
+
+    ins, res, check = converted["bspline_boolean.step"]
+    assert check.ok
+    m = ins.model
+    left_out = [fr for fr in res.faces if fr.strip_cuts]
+    assert left_out
+    for fr in left_out:
+        face = m.faces[fr.face]
+        g = _FaceGeometry(face, m.diagonal, TOL)
+        full = _face_or_problem(face, m, res.plan, TOL, g)
+        assert len(_strips(fr, g.sliver)) < len(_strips(full, g.sliver))
+        free = _droppable_cuts(face, m, res.plan, g)
+        for e, ws in res.own_cuts[fr.face].items():
+            assert ws <= free.get(e, set())  # only cuts the face itself does not need
+            assert not set(map(float, res.shared_cuts(e))) & ws
+            # the face's sides on e run through the cuts: no side ends at one
+            ends = {w for p in fr.patches for s in (p.bottom, p.top) if s.edge == e for w in (s.w0, s.w1)}
+            assert not any(min(abs(w - x) for x in ends) < 1e-12 for w in ws)

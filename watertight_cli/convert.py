@@ -186,6 +186,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
             "folded_patches": fc.folded,
             "collapsed_rungs": fc.collapsed_rungs,
             "thin_patches": fc.thin,
+            "plan_cuts_left_out": fr.strip_cuts,
             "problems": fc.problems,
         })
     return {
@@ -211,6 +212,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
         "folded_patches": sum(c.folded for c in check.faces),
         "collapsed_rungs": sum(c.collapsed_rungs for c in check.faces),
         "thin_patches": sum(c.thin for c in check.faces),
+        "plan_cuts_left_out": sum(f.strip_cuts for f in result.faces),
         "verified": check.ok,
         "faces": faces,
     }

@@ -1101,7 +1101,7 @@ def substitute(model: Model, result: UntrimResult, tol: Tolerances, progress=Non
     users = {e: [(snap[e].get(lo, lo), snap[e].get(hi, hi), r, size) for lo, hi, r, size in uses]
              for e, uses in users.items()}
     for e, uses in users.items():
-        if not curves.decide_midway(e, result.plan.get(e, np.zeros(0))):
+        if not curves.decide_midway(e, result.shared_cuts(e)):
             curves.lower(e, uses, _LOWER_REL * tol.watertight_rel * model.diagonal)
             curves.decide(e, uses)
     faces: list[FaceSubstitution] = []

@@ -15,7 +15,9 @@ The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
    piece end between a region's bottom and top put there (another pcurve's end elsewhere in u), and that
    is no knot line, does not cut that region: its bottom and top run through it, and the cell spans
    several slabs (``_through_lines``), so ends of pcurves that fall close in u do not chop the whole
-   face into strips.
+   face into strips. A plan cut that only a neighbour needs and that ends a strip across a slab (a
+   cell far longer than wide, beside a knot line or a vertex) is left out where that leaves fewer
+   strips (``_without_strip_cuts``): the face's side runs through it, a T-vertex of the neighbour.
 3. **Maps.** A cell whose bottom and top are iso-lines is a sub-box: de Casteljau/blossoming. Otherwise
    the ruled map phi(s, t) = (1 - t) B(s) + t T(s) joins the bottom B and the top T, each in its own
    (pcurve = edge) parameter, so the trimming side keeps the edge's parameter. S o phi is composed
@@ -151,6 +153,7 @@ class FaceResult:
     estimated: bool = False
     folds: int = 0
     local_cuts: int = 0
+    strip_cuts: int = 0  # plan cuts left out because they ended strips across slabs (_without_strip_cuts)
     closure: float = 0.0  # deviation bound of closing the loops' uv gaps and snapping (model units)
     flattened: float = 0.0  # the part of ``closure`` spent on flattening near-iso pcurves (_flatten)
     snapped: int = 0  # pieces treated as iso-lines though they wiggle (by less than the snap)
@@ -180,9 +183,19 @@ class UntrimResult:
     # ends its cell at the crossing by itself, and a cut there would give it the inverted strip
     # beyond as a cell of its own (``plan_for``)
     own_cuts: dict[int, dict[int, set[float]]] = field(default_factory=dict)
+    # per edge, the plan cuts that some face of it leaves out (``_without_strip_cuts``): that face's
+    # side runs through them, so a curve fitted per plan piece (the midway curve) has no break there
+    strip_cuts: dict[int, set[float]] = field(default_factory=dict)
+
+    def shared_cuts(self, e: int) -> np.ndarray:
+        """The plan's parameters on edge e at which every face of the edge cuts it."""
+        plan = self.plan.get(e, np.zeros(0))
+        out = self.strip_cuts.get(e)
+        return plan if not out else np.array([w for w in plan if float(w) not in out])
 
     def plan_for(self, face: int) -> dict[int, np.ndarray]:
-        """The edge plan a face is decomposed with: ``plan`` less the face's own crossing cuts."""
+        """The edge plan a face is decomposed with: ``plan`` less the face's own crossing cuts and
+        the cuts it leaves out beside strips."""
         return _plan_without(self.plan, self.own_cuts.get(face, {}))
 
     @property
@@ -1745,6 +1758,7 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     slide = RUNG_SLIDE * tol.approx_rel * model.diagonal
     plan_time = time.perf_counter() - t0
     faces = []
+    dropped: dict[int, dict[int, set[float]]] = {}  # per face, the plan cuts it leaves out beside strips
     for i, (face, g) in enumerate(zip(model.faces, geoms, strict=True)):
         fr = _face_or_problem(face, model, plan, tol, g)
         # faces with a seam keep their orientation; a pole turns with the face (it is a degenerate
@@ -1774,21 +1788,130 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
                 if fr.problems or ((left_t < left or cheaper) and repairs and len(frt.patches) <= room):
                     model.faces[i], fr = turned, frt
                     geoms[i] = gt
+        fr, drops = _without_strip_cuts(model.faces[i], model, plan, fr, tol, geoms[i], slide)
+        if drops:
+            dropped[i] = drops
         faces.append(fr)
         if progress is not None:
             progress(1)
     from .topology import JOIN_REL
 
     cusps = {i: cusp_tails(model, fr, JOIN_REL * model.diagonal, slide) for i, fr in enumerate(faces)}
-    for i, tails in cusps.items():
-        faces[i].crossings.extend(tails)
-    own: dict[int, dict[int, set[float]]] = {}
+    # a tail's edges keep every plan cut on every face: stage 2 moves the far end of a tail, and the
+    # edge's curve with it, piecewise linearly between the cuts (``substitute._Curves._alias_move``),
+    # so a side through a cut would not pass through its neighbour's corner there (fusee edge 253:
+    # a T-vertex 2.1e-7 off a side of face 44)
+    tails = {t[0] for i, fr in enumerate(faces) for c in (*fr.crossings, *cusps[i]) for t in c}
+    redo = [i for i, drops in dropped.items() if set(drops) & tails]
+    for i in redo:
+        del dropped[i]
+        faces[i] = _face_or_problem(model.faces[i], model, plan, tol, geoms[i])
+    if redo:
+        cusps = {i: cusp_tails(model, fr, JOIN_REL * model.diagonal, slide) for i, fr in enumerate(faces)}
+    for i, tails_i in cusps.items():
+        faces[i].crossings.extend(tails_i)
+    own: dict[int, dict[int, set[float]]] = {i: {e: set(ws) for e, ws in d.items()}
+                                             for i, d in dropped.items()}
+    strip_cuts: dict[int, set[float]] = {}
+    for d in dropped.values():
+        for e, ws in d.items():
+            strip_cuts.setdefault(e, set()).update(ws)
     for i in _crossing_cuts(model, plan, faces, tol.sliver_rel * model.diagonal, own):
         fr = _face_or_problem(model.faces[i], model, _plan_without(plan, own.get(i, {})), tol, geoms[i])
         fr.crossings.extend(cusps[i])  # the face made again keeps its cusps' tails
+        fr.strip_cuts = faces[i].strip_cuts  # and leaves out the same plan cuts (``own``)
         if len(fr.problems) <= len(faces[i].problems):
             faces[i] = fr
-    return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time, own)
+    return UntrimResult(faces, plan, tol.approx_rel * model.diagonal, tol.max_degree, plan_time, own,
+                        strip_cuts)
+
+
+#: a cell whose rungs are both longer than this many times its bottom and top (in 3D, along their
+#: control polygons) is a strip across its slab (``_without_strip_cuts``); the independent checker
+#: counts patches more than 500 times longer than wide
+_STRIP = 200.0
+
+
+def _strips(fr: FaceResult, sliver: float) -> list[Patch]:
+    """The face's patches that are strips across their slab (``_STRIP``), wider than a sliver."""
+    out = []
+    for p in fr.patches:
+        c = p.ctrl[..., :3] / p.ctrl[..., 3:] if p.rational else p.ctrl
+        sides = [float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
+                 for r in (c[:, 0], c[:, -1], c[0, :], c[-1, :])]
+        width = max(sides[0], sides[1])
+        if width > sliver and min(sides[2], sides[3]) > _STRIP * width:
+            out.append(p)
+    return out
+
+
+def _droppable_cuts(face: Face, model: Model, plan: dict[int, np.ndarray],
+                    g: _FaceGeometry) -> dict[int, set[float]]:
+    """Per edge of the face, the plan's parameters that only other faces need: not an end of the
+    edge, not a break of its 3D curve, and not the plan point that stands for one of this face's
+    own needs (``_needs``; the plan merged and thinned them, so the nearest plan point serves)."""
+    out: dict[int, set[float]] = {}
+    for ce in _coedges(face, model):
+        edge = model.edges[ce.edge]
+        P = plan.get(ce.edge, np.zeros(0))
+        if ce.degenerate or edge.curve is None or not len(P):
+            continue
+        anchors = np.concatenate([[edge.first], P, [edge.last]])
+        needs = _needs(ce, g.breaks, (g.ueps, g.veps)) + list(_interior_breaks(edge.curve.knots,
+                                                                                edge.curve.degree))
+        served = {int(np.argmin(np.abs(anchors - w))) for w in needs}
+        free = {float(w) for k, w in enumerate(P, start=1) if k not in served}
+        if free:
+            out.setdefault(ce.edge, set()).update(free)
+    # an edge twice on the face (a seam) keeps what either coedge needs
+    for ce in _coedges(face, model):
+        if ce.edge in out and sum(c.edge == ce.edge for c in _coedges(face, model)) > 1:
+            out.pop(ce.edge)
+    return out
+
+
+def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], fr: FaceResult,
+                        tol: Tolerances, g: _FaceGeometry,
+                        slide: float) -> tuple[FaceResult, dict[int, set[float]]]:
+    """The face made again without the plan cuts that end strips across its slabs, where that
+    leaves fewer strips and nothing worse, and those cuts (edge -> parameters; none: ``fr`` kept).
+
+    A plan cut that only a neighbour needs (its knot line, its extremum) puts a slab line across
+    this face; where that line stands close in u to another (a knot line, a vertex), the cells
+    between are strips many times longer than wide (bspline_boolean face 0: 19 of 176 patches more
+    than 500 times, 0.04 x 75 beside its knot line u = 0.25). Without the cut the face's side runs
+    through the parameter; the neighbour's corner there is a T-vertex on that side, which stage 2
+    makes a subdivision point of the shared curve (the side takes the edge's curve over both plan
+    pieces: no break of the curve lies between them)."""
+    if fr.problems:
+        return fr, {}
+    strips = _strips(fr, g.sliver)
+    if not strips:
+        return fr, {}
+    try:
+        free = _droppable_cuts(face, model, plan, g)
+    except UntrimError:
+        return fr, {}
+    drops: dict[int, set[float]] = {}
+    for p in strips:
+        for side in (p.bottom, p.top):
+            if side.iso or side.edge is None or side.edge not in free:
+                continue
+            ws = np.array(sorted(free[side.edge]))
+            edge = model.edges[side.edge]
+            eps = 1e-9 * max(edge.last - edge.first, 1e-300)
+            for w in (side.w0, side.w1):
+                k = int(np.argmin(np.abs(ws - w)))
+                if abs(ws[k] - w) <= eps:
+                    drops.setdefault(side.edge, set()).add(float(ws[k]))
+    if not drops:
+        return fr, {}
+    again = _face_or_problem(face, model, _plan_without(plan, drops), tol, g)
+    if (again.problems or len(_strips(again, g.sliver)) >= len(strips) or len(again.patches) > len(fr.patches)
+            or _unshared_rungs(again, slide) > _unshared_rungs(fr, slide)):
+        return fr, {}
+    again.strip_cuts = sum(len(ws) for ws in drops.values())
+    return again, drops
 
 
 def _plan_without(plan: dict[int, np.ndarray], cuts: dict[int, set[float]]) -> dict[int, np.ndarray]:
