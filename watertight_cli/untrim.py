@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import functools
 import time
+from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -1851,10 +1852,13 @@ def _droppable_cuts(face: Face, model: Model, plan: dict[int, np.ndarray],
     edge, not a break of its 3D curve, and not the plan point that stands for one of this face's
     own needs (``_needs``; the plan merged and thinned them, so the nearest plan point serves)."""
     out: dict[int, set[float]] = {}
-    for ce in _coedges(face, model):
+    coedges = _coedges(face, model)
+    uses = Counter(ce.edge for ce in coedges)
+    for ce in coedges:
         edge = model.edges[ce.edge]
         P = plan.get(ce.edge, np.zeros(0))
-        if ce.degenerate or edge.curve is None or not len(P):
+        # an edge twice on the face (a seam) keeps every cut: each coedge may need what the other does not
+        if ce.degenerate or edge.curve is None or not len(P) or uses[ce.edge] > 1:
             continue
         anchors = np.concatenate([[edge.first], P, [edge.last]])
         needs = _needs(ce, g.breaks, (g.ueps, g.veps)) + list(_interior_breaks(edge.curve.knots,
@@ -1862,11 +1866,7 @@ def _droppable_cuts(face: Face, model: Model, plan: dict[int, np.ndarray],
         served = {int(np.argmin(np.abs(anchors - w))) for w in needs}
         free = {float(w) for k, w in enumerate(P, start=1) if k not in served}
         if free:
-            out.setdefault(ce.edge, set()).update(free)
-    # an edge twice on the face (a seam) keeps what either coedge needs
-    for ce in _coedges(face, model):
-        if ce.edge in out and sum(c.edge == ce.edge for c in _coedges(face, model)) > 1:
-            out.pop(ce.edge)
+            out[ce.edge] = free
     return out
 
 
