@@ -244,3 +244,42 @@ def test_a_read_without_healing_reads_the_file_as_written_and_leaves_later_reads
     assert raw[0] < healed[0] and raw[1] < healed[1] / 10, (raw, healed)
     assert measured(iges, heal=False) == healed_iges
     assert measured(step) == healed and measured(iges) == healed_iges
+
+
+def test_knots_the_splines_do_not_break_at_are_dropped_on_reading(tol):
+    """bspline_boolean's edges carry the union of their faces' knots: 162 interior knots, of which
+    only 106 are breaks. The model keeps the breaks only (and the kernel check above holds)."""
+    m = inspect(str(fixture_path("bspline_boolean.step")), tol).model
+    eps = tol.knot_rel * m.diagonal
+    inner = 0
+    for e in m.edges:
+        if e.curve is None:
+            continue
+        assert e.curve.merged(eps) is e.curve  # nothing left to drop
+        c = e.curve
+        inner += len(np.unique(c.knots[c.degree + 1:len(c.knots) - c.degree - 1]))
+    assert inner == 106
+    for f in m.faces:
+        assert f.surface.merged(eps) is f.surface
+
+
+def test_a_rational_surface_keeps_its_shape_without_inserted_knots():
+    from watertight_cli.core.bspline import insert_knot
+    from watertight_cli.model import BSplineSurface
+
+    rng = np.random.default_rng(3)
+    p, q = 2, 3
+    uk = np.array([0, 0, 0, 1, 1, 1], float)
+    vk = np.array([0, 0, 0, 0, 0.5, 1, 1, 1, 1], float)
+    poles = rng.normal(size=(3, 5, 3)) * 10
+    w = rng.uniform(0.5, 2, (3, 5))
+    H = np.concatenate([poles * w[..., None], w[..., None]], axis=-1)
+    uk2, H2 = insert_knot(uk, p, H, 0.3, 1)
+    vk2, H3 = insert_knot(vk, q, np.swapaxes(H2, 0, 1), 0.8, 2)
+    H3 = np.swapaxes(H3, 0, 1)
+    s = BSplineSurface(p, q, uk2, vk2, H3[..., :3] / H3[..., 3:], H3[..., 3])
+    m = s.merged(1e-10)
+    assert set(np.unique(m.uknots)) == {0.0, 1.0} and set(np.unique(m.vknots)) == {0.0, 0.5, 1.0}
+    g = rng.random((300, 2))
+    assert np.abs(m.evaluate(g) - s.evaluate(g)).max() <= 1e-10
+    assert m.merged(1e-10) is m

@@ -25,6 +25,28 @@ def _cartesian(h: np.ndarray, rational: bool) -> np.ndarray:
     return h[:, :-1] / h[:, -1:] if rational else h
 
 
+def _merged(knots: np.ndarray, degree: int, poles: np.ndarray, weights: np.ndarray | None, tol: float):
+    """(knots, poles, weights) without the knots across which the spline is one polynomial (see
+    ``core.bspline.merge_removable_spans``), or None. Weights are compared on the scale of the
+    coordinates, so ``tol`` bounds the change of the homogeneous form in model units."""
+    from .core.bspline import merge_removable_spans
+
+    H = _homogeneous(poles, weights)
+    scale = 1.0
+    if weights is not None:
+        scale = max(float(np.abs(poles).max(initial=0.0)), 1.0)
+        H = H.copy()
+        H[..., -1] *= scale
+    out = merge_removable_spans(knots, degree, H, tol)
+    if out is None:
+        return None
+    kn, Hm = out
+    if weights is None:
+        return kn, Hm, None
+    w = Hm[..., -1] / scale
+    return kn, Hm[..., :-1] / w[..., None], w
+
+
 def _homogeneous(poles: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
     if weights is None:
         return poles
@@ -61,6 +83,11 @@ class BSplineCurve:
     def homogeneous(self) -> np.ndarray:
         """(n, d+1) premultiplied poles and weights, or (n, d) poles when polynomial."""
         return _homogeneous(self.poles, self.weights)
+
+    def merged(self, tol: float) -> BSplineCurve:
+        """The same curve without knots it does not break at (within ``tol``); ``self`` if none."""
+        out = _merged(self.knots, self.degree, self.poles, self.weights, tol)
+        return self if out is None else BSplineCurve(self.degree, *out)
 
     def evaluate(self, t: np.ndarray) -> np.ndarray:
         """Points at parameters ``t`` (k,) -> (k, d).
@@ -110,6 +137,21 @@ class BSplineSurface:
 
     def homogeneous(self) -> np.ndarray:
         return _homogeneous(self.poles, self.weights)
+
+    def merged(self, tol: float) -> BSplineSurface:
+        """The same surface without u- or v-knots it does not break at (within ``tol``); ``self`` if
+        none: a lofted or Boolean-made surface often carries the union of its sections' knots."""
+        s = self
+        out = _merged(s.uknots, s.udegree, s.poles, s.weights, tol)
+        if out is not None:
+            s = BSplineSurface(s.udegree, s.vdegree, out[0], s.vknots, out[1], out[2])
+        w = None if s.weights is None else s.weights.T
+        out = _merged(s.vknots, s.vdegree, np.swapaxes(s.poles, 0, 1), w, tol)
+        if out is not None:
+            poles = np.ascontiguousarray(np.swapaxes(out[1], 0, 1))
+            weights = None if out[2] is None else np.ascontiguousarray(out[2].T)
+            s = BSplineSurface(s.udegree, s.vdegree, s.uknots, out[0], poles, weights)
+        return s
 
     def evaluate(self, uv: np.ndarray) -> np.ndarray:
         """Points at parameter pairs ``uv`` (k, 2) -> (k, 3); end spans extend past the domain."""

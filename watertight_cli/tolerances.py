@@ -33,6 +33,11 @@ class Tolerances:
         claim exactness at 1e-9.
     exact_rel:
         What counts as exact: 1e-9 of the diagonal (invariant I4, stage 1 deviation).
+    knot_rel:
+        Knots across which a curve or surface read from the input is one polynomial to within this
+        (relative to the diagonal, bounding the change of its control points) are removed on
+        reading. 1e-12 of the diagonal is rounding: lofts and Booleans give their surfaces and
+        edges the union of their sections' knots, and every knot is a slab line or a plan cut.
     watertight_rel:
         Largest gap allowed between neighbours after conversion: 1e-12 of the diagonal
         (invariant I2: floating point only).
@@ -64,6 +69,7 @@ class Tolerances:
     approx_rel: float = 1e-6
     convert_rel: float = 1e-10
     exact_rel: float = 1e-9
+    knot_rel: float = 1e-12
     watertight_rel: float = 1e-12
     sew_max_rel: float = 2e-2
     sliver_rel: float = 1e-8

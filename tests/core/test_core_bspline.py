@@ -11,6 +11,7 @@ from watertight_cli.core.bspline import (
     bspline_eval,
     find_span,
     insert_knot,
+    merge_removable_spans,
     split_curve_at,
     surface_to_bezier,
     to_bezier,
@@ -148,3 +149,50 @@ def test_split_curve_at(seed, p):
     assert rel_err(extracted_eval(breaks, segs, x), BSpline(knots, ctrl, p)(x)) < 1e-11
     with pytest.raises(ValueError):
         split_curve_at(knots, p, ctrl, [b + 1.0])
+
+
+@SETTINGS
+@given(seeds, st.integers(1, 6), st.booleans(), st.integers(1, 4))
+def test_merge_removable_spans_drops_inserted_knots_only(seed, p, clamped, extra):
+    """Knots inserted into a spline (removable by construction) go; its own breaks stay, at full
+    multiplicity, and the geometry is unchanged."""
+    rng = np.random.default_rng(seed)
+    knots = random_knots(rng, p, clamped)
+    ctrl = rng.normal(size=(len(knots) - p - 1, 3))
+    a, b = knots[p], knots[len(knots) - p - 1]
+    own = set(np.unique(knots[(knots > a) & (knots < b)]).tolist())
+    k2, c2 = knots, ctrl
+    added = set()
+    for u in rng.uniform(a, b, extra):
+        if min([abs(u - x) for x in own | {a, b}]) < 1e-3 * (b - a):
+            continue
+        k2, c2 = insert_knot(k2, p, c2, float(u), int(rng.integers(1, p + 1)))
+        added.add(float(u))
+    out = merge_removable_spans(k2, p, c2, 1e-9)
+    if not added:  # random control points: the spline's own knots are breaks
+        assert out is None
+        return
+    assert out is not None
+    kn, cp = out
+    inner = set(np.unique(kn[(kn > a) & (kn < b)]).tolist())
+    assert not inner & added
+    assert kn[0] == a and kn[-1] == b
+    x = np.concatenate([rng.uniform(a, b, 200), [a, b]])
+    assert rel_err(BSpline(kn, cp, p)(x), BSpline(knots, ctrl, p)(x)) < 1e-9
+
+
+def test_merge_removable_spans_keeps_a_real_break():
+    """A kink (a knot of full multiplicity with a corner) stays; a C1 join of two different cubics
+    stays too, though its first derivative is continuous."""
+    p = 3
+    knots = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2], float)
+    ctrl = np.array([[0, 0], [1, 1], [2, 1], [3, 0], [4, 1], [5, 1], [6, 0]], float)
+    assert merge_removable_spans(knots, p, ctrl, 1e-9) is None
+    c1 = ctrl.copy()
+    c1[4] = 2 * c1[3] - c1[2]  # C1 at u = 1, still two polynomials
+    assert merge_removable_spans(knots, p, c1, 1e-9) is None
+    # the same cubic twice: one polynomial across u = 1
+    k1, cubic = np.array([0, 0, 0, 0, 2, 2, 2, 2], float), np.array([[0, 0], [1, 3], [3, -1], [4, 2]], float)
+    k2, c2 = insert_knot(k1, p, cubic, 1.0, 3)
+    kn, cp = merge_removable_spans(k2, p, c2, 1e-12)
+    assert np.allclose(kn, k1) and np.allclose(cp, cubic, atol=1e-12)

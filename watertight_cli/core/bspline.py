@@ -23,6 +23,7 @@ __all__ = [
     "surface_to_bezier",
     "split_curve_at",
     "bspline_eval",
+    "merge_removable_spans",
 ]
 
 
@@ -206,3 +207,52 @@ def bspline_eval(knots, degree: int, ctrl, t) -> np.ndarray:
     ctrl = np.asarray(ctrl, dtype=float)
     knots = check_knots(knots, degree, ctrl.shape[0])
     return BSpline(knots, ctrl, int(degree), extrapolate=False)(np.asarray(t, dtype=float))
+
+
+def merge_removable_spans(knots, degree: int, ctrl, tol: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The same B-spline without the knots across which it is one polynomial, or None if it has none.
+
+    Exporters often give a curve or surface the union of several knot vectors (a loft's sections,
+    a Boolean's operands), so knots appear where the spline does not break. Consecutive Bezier spans
+    are joined while one polynomial, the longest span's carried over the group's interval by
+    blossoming, stays within ``tol`` of every span's control points (the convex hull bounds the
+    deviation by that). The result has each remaining break at multiplicity ``degree`` (C0 form, the
+    same geometry); its valid range is the input's. Works along the first axis of ``ctrl``
+    (homogeneous for NURBS: compare weights on the scale of the coordinates yourself)."""
+    breaks, segs = to_bezier(knots, degree, ctrl)
+    k = len(segs)
+    if k < 2 or degree < 1:
+        return None
+
+    def joined(i0: int, i1: int) -> np.ndarray | None:
+        a, b = breaks[i0], breaks[i1 + 1]
+        lengths = np.diff(breaks[i0:i1 + 2])
+        j = i0 + int(np.argmax(lengths))
+        x0, x1 = breaks[j], breaks[j + 1]
+        poly = curve_segment(segs[j], (a - x0) / (x1 - x0), (b - x0) / (x1 - x0))
+        for m in range(i0, i1 + 1):
+            sub = curve_segment(poly, (breaks[m] - a) / (b - a), (breaks[m + 1] - a) / (b - a))
+            if np.abs(sub - segs[m]).max() > tol:
+                return None
+        return poly
+
+    groups: list[tuple[int, int, np.ndarray]] = []
+    i0, poly = 0, segs[0]
+    for i in range(1, k):
+        longer = joined(i0, i)
+        if longer is not None:
+            poly = longer
+            continue
+        groups.append((i0, i - 1, poly))
+        i0, poly = i, segs[i]
+    groups.append((i0, k - 1, poly))
+    if len(groups) == k:
+        return None
+    p = int(degree)
+    kn = [breaks[0]] * (p + 1)
+    pts = [groups[0][2]]
+    for g0, _, poly in groups[1:]:
+        kn += [breaks[g0]] * p
+        pts.append(poly[1:])
+    kn += [breaks[-1]] * (p + 1)
+    return np.array(kn, dtype=float), np.concatenate(pts, axis=0)

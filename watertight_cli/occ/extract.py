@@ -542,11 +542,13 @@ def build_model(shape: TopoDS_Shape, read: ReadResult, diag: float, sewing: Sewi
     vmap = indexed(shape, TopAbs_VERTEX)
     e2f = edge_face_map(shape)
     fit = tol.convert_rel * diag
+    merge = tol.knot_rel * diag  # knots the splines do not break at go (``BSplineCurve.merged``)
 
     vertices = np.array([BRep_Tool.Pnt_s(TopoDS.Vertex_s(vmap.FindKey(i))).Coord()
                          for i in range(1, vmap.Extent() + 1)], dtype=float).reshape(-1, 3)
 
-    faces = [_face(TopoDS.Face_s(fmap.FindKey(fi)), fi - 1, emap, fit) for fi in range(1, fmap.Extent() + 1)]
+    faces = [_face(TopoDS.Face_s(fmap.FindKey(fi)), fi - 1, emap, fit, merge)
+             for fi in range(1, fmap.Extent() + 1)]
 
     edges: list[Edge] = []
     for ei in range(1, emap.Extent() + 1):
@@ -558,7 +560,7 @@ def build_model(shape: TopoDS_Shape, read: ReadResult, diag: float, sewing: Sewi
             c = BRep_Tool.Curve_s(e, 0.0, 0.0)  # the 3-argument form applies the edge's location
             if c is not None:
                 bs, error = curve_3d(c, first, last, fit)
-                curve = align_curve(curve_arrays(bs), first, last)
+                curve = align_curve(curve_arrays(bs), first, last).merged(merge)
         inc = _unique_faces(e2f.FindFromKey(e)) if e2f.Contains(e) else []
         face_ids = tuple(sorted(fmap.FindIndex(f) - 1 for f in inc))
         seam = any(BRep_Tool.IsClosed_s(e, f) for f in inc)
@@ -572,7 +574,7 @@ def build_model(shape: TopoDS_Shape, read: ReadResult, diag: float, sewing: Sewi
                  units=read.units, sewing=sewing)
 
 
-def _coedge(e, face, emap, speed: float, fit: float) -> tuple[Coedge, float]:
+def _coedge(e, face, emap, speed: float, fit: float, merge: float) -> tuple[Coedge, float]:
     first, last = BRep_Tool.Range_s(e, face)
     pc = BRep_Tool.CurveOnSurface_s(e, face, 0.0, 0.0)
     if pc is None:
@@ -580,7 +582,8 @@ def _coedge(e, face, emap, speed: float, fit: float) -> tuple[Coedge, float]:
     # parameter-space tolerance from the 3D one through the surface's largest speed
     bs, err2d = curve_2d(pc, first, last, fit / speed)
     return (Coedge(edge=emap.FindIndex(e) - 1, reversed=e.Orientation() == TopAbs_REVERSED,
-                   pcurve=align_curve(curve_arrays(bs), first, last), first=first, last=last), err2d * speed)
+                   pcurve=align_curve(curve_arrays(bs), first, last).merged(merge / speed), first=first,
+                   last=last), err2d * speed)
 
 
 def _surface_speed(a: BSplineSurface) -> float:
@@ -595,7 +598,7 @@ def _surface_speed(a: BSplineSurface) -> float:
                                   np.linalg.norm(dv, axis=-1).max(initial=0))))
 
 
-def _face(face, index: int, emap, fit: float) -> Face:
+def _face(face, index: int, emap, fit: float, merge: float) -> Face:
     stype = surface_type_name(face)
     loc = TopLoc_Location()
     surf = BRep_Tool.Surface_s(face, loc)
@@ -606,6 +609,7 @@ def _face(face, index: int, emap, fit: float) -> Face:
     bounds = BRepTools.UVBounds_s(face)
     bs, approx = surface_bspline(surf, bounds, fit)
     arrays = align_surface(surface_arrays(bs), _pad(surf, bounds)) if approx else surface_arrays(bs)
+    arrays = arrays.merged(merge)
 
     speed = _surface_speed(arrays)
     loops = []
@@ -626,7 +630,7 @@ def _face(face, index: int, emap, fit: float) -> Face:
                 exp.Next()
         coedges = []
         for e in uses:
-            ce, err = _coedge(e, face, emap, speed, fit)
+            ce, err = _coedge(e, face, emap, speed, fit, merge)
             coedges.append(ce)
             errors.append(err)
         loops.append(Loop(tuple(coedges), outer=not outer.IsNull() and wire.IsSame(outer)))
