@@ -262,8 +262,8 @@ def test_flatten_makes_a_wiggly_vertical_coedge_exact_and_pins_the_corners():
     u = const, and the loop closing keeps that u at both of its corners."""
     from watertight_cli.untrim import _close_loops, _Coedge, _flatten, _Piece
 
-    class G:  # the two speed bounds _flatten reads
-        su, sv = 1.0, 1.0
+    class G:  # the two speed bounds and the thin width _flatten reads
+        su, sv, thin = 1.0, 1.0, 0.0
 
     def chain_entry(points):
         H = np.concatenate([np.asarray(points, float), np.ones((len(points), 1))], axis=1)
@@ -288,7 +288,7 @@ def test_flatten_leaves_curved_coedges_alone():
     from watertight_cli.untrim import _Coedge, _flatten, _Piece
 
     class G:
-        su, sv = 1.0, 1.0
+        su, sv, thin = 1.0, 1.0, 0.0
 
     H = np.array([[0.0, 0.0, 1.0], [0.3, 0.5, 1.0], [0.0, 1.0, 1.0]])
     ce = _Coedge(0, False, None, 0.0, 1.0, np.array([0.0, 1.0]), np.zeros((1, 2, 3)))
@@ -693,6 +693,10 @@ def test_thin_patch_counts_slivers_below_the_tolerance_and_not_pole_triangles():
     assert not thin_patch(grid(S, T), width)
     assert not thin_patch(grid(S * T, T), width)  # a triangle: its side s = 0 collapsed at the pole
     assert not thin_patch(grid(5e-3 * S, 4e-4 * T), width)  # small, but not long: not a sliver
+    # 4e-4 wide and 42 long with its top end slanted 2 along it: the corners of that end stand 2
+    # apart, the sides 4e-4 all along
+    assert thin_patch(grid(4e-4 * S, 42.0 * T + 2.0 * S * T), width)
+    assert not thin_patch(grid(0.5 * S, 42.0 * T + 2.0 * S * T), width)
 
 
 def _cusp_model(c: float):
@@ -885,3 +889,28 @@ def test_plan_cuts_that_end_strips_are_left_out(converted):
             # the face's sides on e run through the cuts: no side ends at one
             ends = {w for p in fr.patches for s in (p.bottom, p.top) if s.edge == e for w in (s.w0, s.w1)}
             assert not any(min(abs(w - x) for x in ends) < 1e-12 for w in ws)
+
+
+def test_a_piece_alone_nearly_on_a_slab_line_goes_onto_the_line_through_its_turning_end():
+    """bspline_boolean face 0: a pcurve turns back at u = A (its extremum) and has a knot 6e-5
+    further in v, where u = A + 3e-8. The piece between stood on two slab lines 3e-6 apart in 3D,
+    a strip 33 long. Flattened, it lies on u = A; the next piece starts there; the piece that
+    turns at A keeps its end."""
+    from watertight_cli.untrim import _flatten_runs, _Piece
+
+    def piece(*pts):
+        return _Piece(np.array([[u, v, 1.0] for u, v in pts]), 3, 0.0, 1.0, False)
+
+    A = 0.288
+    up = piece((A + 0.01, 0.7), (A, 0.6))  # comes down to the extremum
+    tiny = piece((A, 0.6), (A + 1e-8, 0.59997), (A + 3e-8, 0.59994))
+    down = piece((A + 3e-8, 0.59994), (A + 0.02, 0.3))
+    ps = [up, tiny, down]
+    moved = _flatten_runs(ps, 0, half=0.0, single=1e-7)
+    assert moved == pytest.approx(3e-8)
+    assert np.all(tiny.H[:, 0] == A) and down.H[0, 0] == A and up.H[-1, 0] == A
+    assert down.H[-1, 0] == A + 0.02 and up.H[0, 0] == A + 0.01
+    # wider than ``single``: left as it is
+    ps = [piece((A + 0.01, 0.7), (A, 0.6)), piece((A, 0.6), (A + 3e-6, 0.59994)),
+          piece((A + 3e-6, 0.59994), (A + 0.02, 0.3))]
+    assert _flatten_runs(ps, 0, half=0.0, single=1e-7) == 0.0 and ps[1].H[-1, 0] == A + 3e-6

@@ -1468,14 +1468,24 @@ def _flatten(chains, g: _FaceGeometry, budget: float) -> tuple[dict[int, tuple],
             if vals[0] is None and g.su > 0:
                 # in u only: slabs need near-vertical stretches to be vertical; in v a moved end
                 # could cross a knot line that the edge plan cut at before
-                worst = max(worst, g.su * _flatten_runs(ps, 0, budget / g.su))
+                worst = max(worst, g.su * _flatten_runs(ps, 0, budget / g.su, g.thin / g.su))
     return fixed, worst
 
 
-def _flatten_runs(ps: list[_Piece], axis: int, half: float) -> float:
+def _flatten_runs(ps: list[_Piece], axis: int, half: float, single: float = 0.0) -> float:
     """Within one coedge, flatten every run of two or more consecutive pieces whose ``axis``
     coordinate stays in a band of half-width ``half`` (a stretch of a long pcurve that runs along
     an iso-line and wiggles around it); the neighbours' adjoining end points move onto the line.
+
+    A piece alone is flattened when its band is narrower than ``single`` (``Tolerances.thin_rel``
+    in 3D), it has a neighbour on the coedge at both ends and the pcurve turns back at one of them
+    (``_turning_end``): as it is, its two ends stand on two slab lines that close, and the cells
+    between them are a strip below the tolerance all along the face (bspline_boolean face 0: a
+    pcurve's extremum and its knot 6e-5 further in v stood 3e-8 apart in u, a strip 3e-6 wide and
+    33 long). It goes onto the line through the turning end, so the neighbour there stays
+    monotone. A short piece inside a bend is left alone: it is not near an iso-line, only short,
+    and made iso (ec_turbine has 17 such, 2e-6 to 1e-5 long) it left sides 1.3e-7 off their
+    neighbours (I2).
     Returns the largest move in uv (a band's half-width), 0.0 when nothing moved."""
     worst_band = 0.0
     i, n = 0, len(ps)
@@ -1489,17 +1499,44 @@ def _flatten_runs(ps: list[_Piece], axis: int, half: float) -> float:
             if 0.5 * (nhi - nlo) > half:
                 break
             lo, hi, j = nlo, nhi, j + 1
-        if j - i >= 2 and hi > lo:
+        alone = False
+        if j - i < 2 and 0 < i < n - 1:
+            c = ps[i].H[:, axis] / ps[i].H[:, 2]
+            if c.max() - c.min() <= single:
+                alone, lo, hi, j = True, float(c.min()), float(c.max()), i + 1
+        if (j - i >= 2 or alone) and hi > lo:
             mid = 0.5 * (lo + hi)
+            band = 0.5 * (hi - lo)
+            if alone:
+                at = _turning_end(ps[i - 1], ps[i], ps[j], axis)
+                if at is None:  # a short piece in a bend, not a pcurve turning on a line: as it is
+                    i += 1
+                    continue
+                mid = float(at)
+                band = hi - lo
             for p in ps[i:j]:
                 p.H[:, axis] = mid * p.H[:, 2]
             if i > 0:
                 ps[i - 1].H[-1, axis] = mid * ps[i - 1].H[-1, 2]
             if j < n:
                 ps[j].H[0, axis] = mid * ps[j].H[0, 2]
-            worst_band = max(worst_band, 0.5 * (hi - lo))
+            worst_band = max(worst_band, band)
         i = max(j, i + 1)
     return worst_band
+
+
+def _turning_end(before: _Piece, p: _Piece, after: _Piece, axis: int) -> float | None:
+    """The ``axis`` coordinate of the one end of ``p`` where the pcurve turns back (the piece beside
+    it leaves that end on the same side as ``p`` does), or None if neither or both do."""
+    def c(q: _Piece, k: int) -> float:
+        return float(q.H[k, axis] / q.H[k, 2])
+
+    a, b = c(p, 0), c(p, -1)
+    turn_a = (c(before, 0) - a) * (b - a) > 0
+    turn_b = (c(after, -1) - b) * (a - b) > 0
+    if turn_a == turn_b:
+        return None
+    return a if turn_a else b
 
 
 def _close_loops(chains: list[list[tuple[_Coedge, list[_Piece]]]], fixed: dict | None = None,
