@@ -870,7 +870,7 @@ def test_plan_cuts_that_end_strips_are_left_out(converted):
     of the face where that leaves fewer strips: its side runs through them (the neighbour's corner
     is a T-vertex on it). The faces keep every cut they need themselves, and stage 2 fits no curve
     with a break at a cut some face left out."""
-    from watertight_cli.untrim import _droppable_cuts, _face_or_problem, _FaceGeometry, _strips
+    from watertight_cli.untrim import _bands, _droppable_cuts, _face_or_problem, _FaceGeometry, _strips
 
     ins, res, check = converted["bspline_boolean.step"]
     assert check.ok
@@ -881,7 +881,8 @@ def test_plan_cuts_that_end_strips_are_left_out(converted):
         face = m.faces[fr.face]
         g = _FaceGeometry(face, m.diagonal, TOL)
         full = _face_or_problem(face, m, res.plan, TOL, g)
-        assert len(_strips(fr, g.sliver)) < len(_strips(full, g.sliver))
+        assert len(_strips(fr, g.sliver)) + len(_bands(fr, g.sliver)) < len(_strips(full, g.sliver)) + len(
+            _bands(full, g.sliver))
         free = _droppable_cuts(face, m, res.plan, g)
         for e, ws in res.own_cuts[fr.face].items():
             assert ws <= free.get(e, set())  # only cuts the face itself does not need
@@ -914,3 +915,70 @@ def test_a_piece_alone_nearly_on_a_slab_line_goes_onto_the_line_through_its_turn
     ps = [piece((A + 0.01, 0.7), (A, 0.6)), piece((A, 0.6), (A + 3e-6, 0.59994)),
           piece((A + 3e-6, 0.59994), (A + 0.02, 0.3))]
     assert _flatten_runs(ps, 0, half=0.0, single=1e-7) == 0.0 and ps[1].H[-1, 0] == A + 3e-6
+
+
+def _square_cut_on_its_sides(left: float, right: float):
+    """The unit square face of ``_square_with_cuts`` whose left side is cut at v = ``left`` and its
+    right side at ``right``, as the neighbours' edge plans cut them."""
+    from watertight_cli.untrim import _Piece
+
+    face, _ = _square_with_cuts(0.5, 0.5)
+    loop = [(0, 0), (1, 0), (1, right), (1, 1), (0, 1), (0, left)]
+    pieces = [_Piece(np.array([[*a, 1.0], [*b, 1.0]]), k, 0.0, 1.0, False)
+              for k, (a, b) in enumerate(zip(loop, loop[1:] + loop[:1], strict=True))]
+    return face, pieces
+
+
+def test_cuts_on_opposite_rungs_closer_than_thin_make_one_slanted_cut():
+    """ec_turbine face 13: the edges on its two sides were cut by their neighbours' plans 2e-6
+    apart in v, and the two v-iso cuts across the face bounded a band below the tolerance. Such a
+    pair is one straight cut from the one point to the other; farther apart they stay two."""
+    from watertight_cli.untrim import FaceResult, _cells, _FaceGeometry
+
+    face, pieces = _square_cut_on_its_sides(0.5, 0.5 + 2e-7)  # diagonal 1: sliver 1e-8, thin 5e-7
+    g = _FaceGeometry(face, 1.0, TOL)
+    cells = list(_cells(face, pieces, g, FaceResult(0)))
+    assert len(cells) == 2
+    (_, _, b0, t0), (_, _, b1, t1) = cells
+    assert t0 is b1 and not t0.iso
+    assert np.allclose(t0.H[:, :2], [[0.0, 0.5], [1.0, 0.5 + 2e-7]], rtol=0, atol=1e-15)
+    face, pieces = _square_cut_on_its_sides(0.5, 0.5 + 2e-6)
+    cells = list(_cells(face, pieces, g, FaceResult(0)))
+    assert len(cells) == 3 and all(t.iso for _, _, _, t in cells[:-1])
+
+
+def test_plan_cuts_that_end_bands_are_left_out():
+    """occt__ec_turbine-A.stp: the edges along a face's sides carry cuts that the neighbours' plans
+    put a hair from the face's own (2e-6 apart in v on face 13), and the v-iso cuts through both
+    bounded bands across the face, their rungs under 1/200 of their bottom and top (face 6: nine).
+    Such a neighbour's cut is left out of the face where that leaves fewer strips and bands; the
+    face keeps every cut it needs itself. About ten seconds."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.untrim import (
+        _bands,
+        _droppable_cuts,
+        _face_or_problem,
+        _FaceGeometry,
+        _strips,
+        untrim,
+    )
+
+    m = inspect(str(corpus_path("occt__ec_turbine-A.stp")), TOL, array_gaps=False).model
+    res = untrim(m, TOL)
+    before = after = 0
+    for fr in res.faces:
+        if not fr.strip_cuts:
+            continue
+        face = m.faces[fr.face]
+        g = _FaceGeometry(face, m.diagonal, TOL)
+        full = _face_or_problem(face, m, res.plan, TOL, g)
+        assert len(_strips(fr, g.sliver)) + len(_bands(fr, g.sliver)) < len(_strips(full, g.sliver)) + len(
+            _bands(full, g.sliver))
+        before += len(_bands(full, g.sliver))
+        after += len(_bands(fr, g.sliver))
+        free = _droppable_cuts(face, m, res.plan, g)
+        for e, ws in res.own_cuts[fr.face].items():
+            assert ws <= free.get(e, set())
+        if fr.face == 6:
+            assert len(_bands(full, g.sliver)) >= 9 and not _bands(fr, g.sliver)
+    assert after < before / 2

@@ -667,6 +667,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     near_ends = [] if rung_cuts == "none" else [
         (line, float(q.H[-k, 1] / q.H[-k, 2])) for _, a, b, q in parts for k, line in ((0, a), (1, b))]
     cells = []
+    slants: dict[int, dict[float, float]] = {}  # per cell, its slanted cuts (``_slanted_cuts``)
     for j, jr, x, y in pairs:
         bot, top = parts[x][3], parts[y][3]
         cua, cub = float(lines[j]), float(lines[jr])
@@ -689,22 +690,41 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
         # of bottom and top), which may stand a sliver off the slab lines
         b0, b1 = bot.H[0, :2] / bot.H[0, 2], bot.H[-1, :2] / bot.H[-1, 2]
         t0, t1 = top.H[0, :2] / top.H[0, 2], top.H[-1, :2] / top.H[-1, 2]
-        cuts = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps)
+        rungs: dict[float, set[int]] = {}
+        cuts = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps, rungs)
         if len(cuts) > len(knots):
             cuts = _sliver_cuts_dropped(cuts, set(knots), plan_only, face, (b0, t0), (b1, t1), g)
+            cuts, slant = _slanted_cuts(cuts, set(knots), rungs, face, (b0, t0), (b1, t1), g)
+            if slant:
+                slants[len(cells)] = slant
         knots = cuts
         cells.append([cua, cub, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j, jr])
     if rung_cuts != "none":
-        _tangent_rung_cuts(cells, veps)
+        _tangent_rung_cuts(cells, veps, slants)
         # the cuts made so far end on both rungs of their cells: those ends may fall near the end
         # of a neighbour's rung too (fusee face 37: a vertex cut beside a rung 1.77 long, 0.0086
         # of it from its end, and the bend refused left a free edge)
-        near_ends += [(line, v) for c in cells for v in c[8] for line in (c[9], c[10])]
-    _align_rungs(cells, near_ends, veps)
-    for ua, ubb, bside, tside, left, right, _, _, knots, _, _ in cells:
-        sides = ([bside] + [_iso_side(_rung_u(*left, c), _rung_u(*right, c), c) for c in knots] + [tside])
+        near_ends += [(line, v) for i, c in enumerate(cells) for line, v in _cut_points(c, slants.get(i))]
+    _align_rungs(cells, near_ends, veps, slants)
+    for i, (ua, ubb, bside, tside, left, right, _, _, knots, _, _) in enumerate(cells):
+        slant = slants.get(i, {})
+        inner = []
+        for c in knots:
+            d = slant.get(c, c)
+            if d == c:
+                inner.append(_iso_side(_rung_u(*left, c), _rung_u(*right, c), c))
+            else:
+                ends = [[_rung_u(*left, c), c, 1.0], [_rung_u(*right, d), d, 1.0]]
+                inner.append(Side(np.array(ends), False))
+        sides = [bside] + inner + [tside]
         for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
             yield ua, ubb, s0, s1
+
+
+def _cut_points(cell: list, slant: dict[float, float] | None) -> list[tuple[int, float]]:
+    """(slab line, v) of every end of the cell's cuts: a slanted cut ends at other v on its right."""
+    slant = slant or {}
+    return [pt for c in cell[8] for pt in ((cell[9], c), (cell[10], slant.get(c, c)))]
 
 
 def _slab_pairs(pieces: list[_Piece], spans: list[tuple[int, int]], lines: np.ndarray,
@@ -871,7 +891,7 @@ def _u_speeds(H: np.ndarray) -> tuple[float, float]:
     return abs(k * (x1 * w0 - x0 * w1) / w0**2), abs(k * (y0 * v1 - y1 * v0) / v0**2)
 
 
-def _tangent_rung_cuts(cells: list, veps: float) -> None:
+def _tangent_rung_cuts(cells: list, veps: float, slants: dict[int, dict[float, float]] | None = None) -> None:
     """Cut a cell without cuts along a v-iso line where its bottom and top both leave one of its
     rungs tangent to it (their u-speed there under ``_TANGENT_RUNG`` x the slab's width over their
     parameter): the cell map (1 - t) B(s) + t T(s) then has S_s along the rung all the way up it,
@@ -883,9 +903,9 @@ def _tangent_rung_cuts(cells: list, veps: float) -> None:
     T-vertex there), else half way between the pieces; a cell whose pieces overlap in v has no
     line between them and stays as it is."""
     by_line: dict[int, list[float]] = {}
-    for cell in cells:
-        for line in (cell[9], cell[10]):
-            by_line.setdefault(line, []).extend(cell[8])
+    for i, cell in enumerate(cells):
+        for line, v in _cut_points(cell, (slants or {}).get(i)):
+            by_line.setdefault(line, []).append(v)
     for cell in cells:
         ua, ub, bside, tside, _, _, bmax, tmin, knots, j, jr = cell
         if knots or tmin - bmax <= 4.0 * veps or ub <= ua:
@@ -904,7 +924,8 @@ def _tangent_rung_cuts(cells: list, veps: float) -> None:
             break
 
 
-def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> None:
+def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float,
+                 slants: dict[int, dict[float, float]] | None = None) -> None:
     """Cut cells along v-iso lines (where the line stays between the cell's bottom and top) so
     that stage 2 can make the patch sides along each slab line meet:
 
@@ -922,7 +943,9 @@ def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> Non
     their slab line, not by their u: a slab narrower than the lines' clustering distance would
     otherwise lend its corners to the rungs of the line beside it. ``cells`` holds [ua, ub, bottom,
     top, left rung, right rung, highest bottom v, lowest top v, cuts, left slab line, right slab
-    line]."""
+    line]. ``slants``: per cell index, its slanted cuts ({v on the left rung: v on the right rung}, see
+    ``_slanted_cuts``); a new cut that falls between the two ends of one makes it two v-iso cuts."""
+    slants = {} if slants is None else slants
     on_line: dict[int, list[int]] = {}
     for i, cell in enumerate(cells):
         for line in (cell[9], cell[10]):
@@ -939,12 +962,14 @@ def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> Non
         pieces: dict[tuple[int, int], list[tuple[float, float]]] = {}
         for i in todo:
             left, right, _, _, cuts, j, jr = cells[i][4:]
+            slant = slants.get(i, {})
             sub = []
             for line, side, (b, t) in ((j, 1, left), (jr, 0, right)):
                 lo, hi = min(b[1], t[1]), max(b[1], t[1])
                 if line not in by_line or hi - lo <= veps:
                     continue
-                pts = [lo] + [c for c in cuts if lo + veps < c < hi - veps] + [hi]
+                on = cuts if side == 1 else sorted(slant.get(c, c) for c in cuts)
+                pts = [lo] + [c for c in on if lo + veps < c < hi - veps] + [hi]
                 sub.append((line, side, pts))
                 pieces.setdefault((line, side), []).extend(zip(pts[:-1], pts[1:], strict=True))
             subs.append(sub)
@@ -974,6 +999,12 @@ def _align_rungs(cells: list, ends: list[tuple[int, float]], veps: float) -> Non
                             extra.append(float(x))
             bmax, tmin, knots = cell[6], cell[7], cell[8]
             extra = [v for v in extra if bmax + veps < v < tmin - veps]
+            slant = slants.get(i, {})
+            for vl, vr in list(slant.items()):
+                if any(min(vl, vr) - veps <= v <= max(vl, vr) + veps for v in extra):
+                    del slant[vl]  # the new cut would cross it: two v-iso cuts again
+                    extra.append(vr)
+                    pending.extend(((cell[10], vl), (cell[9], vr)))
             if extra:
                 cuts = _merge_cuts(knots, extra, veps)
                 pending.extend((line, c) for c in set(cuts) - set(knots) for line in (cell[9], cell[10]))
@@ -995,20 +1026,56 @@ def _merge_cuts(knots: list[float], extra: list[float], veps: float) -> list[flo
 
 
 def _vertex_cuts(knots: list[float], ends: np.ndarray, left, right, bmin: float, tmax: float,
-                 ueps: float, veps: float) -> list[float]:
+                 ueps: float, veps: float, rungs: dict[float, set[int]] | None = None) -> list[float]:
     """A cell's knot lines plus the v of every vertex in ``ends`` that lies on one of its rungs
-    strictly inside it; values closer than ``veps`` merge (a knot line wins)."""
+    strictly inside it; values closer than ``veps`` merge (a knot line wins). ``rungs`` (if given)
+    receives, per vertex v, the rungs it lies on (0 left, 1 right)."""
     if len(ends) == 0:
         return knots
     extra = []
-    for b, t in (left, right):
+    for k, (b, t) in enumerate((left, right)):
         if abs(b[0] - t[0]) > 2 * ueps:
             continue
         lo, hi = min(b[1], t[1]), max(b[1], t[1])
         v = ends[:, 1]
         on = (np.abs(ends[:, 0] - b[0]) <= 2 * ueps) & (v > lo + veps) & (v < hi - veps)
-        extra.extend(float(x) for x in v[on] if bmin + veps < x < tmax - veps)
+        for x in v[on]:
+            if bmin + veps < x < tmax - veps:
+                extra.append(float(x))
+                if rungs is not None:
+                    rungs.setdefault(float(x), set()).add(k)
     return _merge_cuts(knots, extra, veps) if extra else knots
+
+
+def _slanted_cuts(cuts: list[float], knots: set[float], rungs: dict[float, set[int]], face: Face, left,
+                  right, g: _FaceGeometry) -> tuple[list[float], dict[float, float]]:
+    """Two neighbouring cuts of a cell, one at a vertex on its left rung only and one at a vertex on
+    its right rung only, that stand closer than ``Tolerances.thin_rel`` (in 3D, on both rungs) become
+    one straight cut from the one to the other: as two v-iso lines they bounded a band below the
+    tolerance across the cell (ec_turbine face 13: its two sides, edges whose neighbours cut them
+    2e-6 apart in v, gave eight bands 1 wide). Returns the cuts (each by its v on the left rung)
+    and {left v: right v} for the slanted ones."""
+    out: list[float] = []
+    slant: dict[float, float] = {}
+    cs = sorted(cuts)
+    i = 0
+    while i < len(cs):
+        x = cs[i]
+        if i + 1 < len(cs):
+            y = cs[i + 1]
+            rx, ry = rungs.get(x, set()), rungs.get(y, set())
+            if x not in knots and y not in knots and len(rx) == 1 and len(ry) == 1 and rx != ry:
+                vl, vr = (x, y) if rx == {0} else (y, x)
+                pts = face.surface.evaluate(np.array([[_rung_u(*left, x), x], [_rung_u(*left, y), y],
+                                                      [_rung_u(*right, x), x], [_rung_u(*right, y), y]]))
+                if (np.linalg.norm(pts[0] - pts[1]) <= g.thin and np.linalg.norm(pts[2] - pts[3]) <= g.thin):
+                    out.append(vl)
+                    slant[vl] = vr
+                    i += 2
+                    continue
+        out.append(x)
+        i += 1
+    return out, slant
 
 
 def _sliver_cuts_dropped(cuts: list[float], knots: set[float], plan_only: set[float], face: Face, left,
@@ -1883,6 +1950,49 @@ def _strips(fr: FaceResult, sliver: float) -> list[Patch]:
     return out
 
 
+def _bands(fr: FaceResult, sliver: float) -> list[Patch]:
+    """The face's patches that are strips the other way: rungs wider than a sliver and more than
+    ``_STRIP`` times shorter than bottom and top (two cuts close in v across the cell)."""
+    out = []
+    for p in fr.patches:
+        c = p.ctrl[..., :3] / p.ctrl[..., 3:] if p.rational else p.ctrl
+        sides = [float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
+                 for r in (c[:, 0], c[:, -1], c[0, :], c[-1, :])]
+        height = max(sides[2], sides[3])
+        if height > sliver and min(sides[0], sides[1]) > _STRIP * height:
+            out.append(p)
+    return out
+
+
+def _band_cuts(fr: FaceResult, bands: list[Patch], free: dict[int, set[float]], veps: float,
+               ueps: float) -> dict[int, set[float]]:
+    """Per edge, the plan cuts in ``free`` that end a band: an end of the band's bottom or top that is
+    the end of an iso piece (a rung along an edge) at that plan parameter."""
+    out: dict[int, set[float]] = {}
+    ends = []
+    for q in fr.iso_pieces:
+        if q.edge is None or q.edge not in free:
+            continue
+        for k, w in ((0, q.w0), (-1, q.w1)):
+            ends.append((float(q.H[k, 0] / q.H[k, 2]), float(q.H[k, 1] / q.H[k, 2]), q.edge, float(w)))
+    if not ends:
+        return out
+    E = np.array([e[:2] for e in ends])
+    for p in bands:
+        for side in (p.bottom, p.top):
+            for k in (0, -1):
+                x = side.H[k, :2] / side.H[k, 2]
+                hit = np.flatnonzero((np.abs(E[:, 0] - x[0]) <= 2 * ueps) & (np.abs(E[:, 1] - x[1]) <= veps))
+                for h in hit:
+                    _, _, e, w = ends[h]
+                    ws = np.array(sorted(free[e]))
+                    m = int(np.argmin(np.abs(ws - w)))
+                    edge_eps = 1e-9 * max(abs(w), 1.0)
+                    if abs(ws[m] - w) <= edge_eps:
+                        out.setdefault(e, set()).add(float(ws[m]))
+    return out
+
+
 def _droppable_cuts(face: Face, model: Model, plan: dict[int, np.ndarray],
                     g: _FaceGeometry) -> dict[int, set[float]]:
     """Per edge of the face, the plan's parameters that only other faces need: not an end of the
@@ -1923,13 +2033,16 @@ def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], f
     if fr.problems:
         return fr, {}
     strips = _strips(fr, g.sliver)
-    if not strips:
+    bands = _bands(fr, g.sliver)
+    if not strips and not bands:
         return fr, {}
     try:
         free = _droppable_cuts(face, model, plan, g)
     except UntrimError:
         return fr, {}
     drops: dict[int, set[float]] = {}
+    for e, ws in _band_cuts(fr, bands, free, g.veps, g.ueps_lines).items():
+        drops.setdefault(e, set()).update(ws)
     for p in strips:
         for side in (p.bottom, p.top):
             if side.iso or side.edge is None or side.edge not in free:
@@ -1944,7 +2057,8 @@ def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], f
     if not drops:
         return fr, {}
     again = _face_or_problem(face, model, _plan_without(plan, drops), tol, g)
-    if (again.problems or len(_strips(again, g.sliver)) >= len(strips) or len(again.patches) > len(fr.patches)
+    fewer = len(_strips(again, g.sliver)) + len(_bands(again, g.sliver)) < len(strips) + len(bands)
+    if (again.problems or not fewer or len(again.patches) > len(fr.patches)
             or _unshared_rungs(again, slide) > _unshared_rungs(fr, slide)):
         return fr, {}
     again.strip_cuts = sum(len(ws) for ws in drops.values())
