@@ -1937,31 +1937,35 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
 _STRIP = 200.0
 
 
-def _strips(fr: FaceResult, sliver: float) -> list[Patch]:
-    """The face's patches that are strips across their slab (``_STRIP``), wider than a sliver."""
+def _side_lengths(p: Patch) -> list[float]:
+    """Control-polygon lengths of a patch's bottom, top, left and right sides (model units)."""
+    c = p.ctrl[..., :3] / p.ctrl[..., 3:] if p.rational else p.ctrl
+    rows = (c[:, 0], c[:, -1], c[0, :], c[-1, :])
+    return [float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum()) for r in rows]
+
+
+def _long_thin(fr: FaceResult, sliver: float, across: tuple[int, int]) -> list[Patch]:
+    """The face's patches whose sides ``across`` (indices into ``_side_lengths``) are wider than a
+    sliver and more than ``_STRIP`` times shorter than the other two."""
+    along = tuple(k for k in range(4) if k not in across)
     out = []
     for p in fr.patches:
-        c = p.ctrl[..., :3] / p.ctrl[..., 3:] if p.rational else p.ctrl
-        sides = [float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
-                 for r in (c[:, 0], c[:, -1], c[0, :], c[-1, :])]
-        width = max(sides[0], sides[1])
-        if width > sliver and min(sides[2], sides[3]) > _STRIP * width:
+        sides = _side_lengths(p)
+        width = max(sides[k] for k in across)
+        if width > sliver and min(sides[k] for k in along) > _STRIP * width:
             out.append(p)
     return out
+
+
+def _strips(fr: FaceResult, sliver: float) -> list[Patch]:
+    """The face's patches that are strips across their slab (``_STRIP``), wider than a sliver."""
+    return _long_thin(fr, sliver, (0, 1))
 
 
 def _bands(fr: FaceResult, sliver: float) -> list[Patch]:
     """The face's patches that are strips the other way: rungs wider than a sliver and more than
     ``_STRIP`` times shorter than bottom and top (two cuts close in v across the cell)."""
-    out = []
-    for p in fr.patches:
-        c = p.ctrl[..., :3] / p.ctrl[..., 3:] if p.rational else p.ctrl
-        sides = [float(np.linalg.norm(np.diff(r, axis=0), axis=1).sum())
-                 for r in (c[:, 0], c[:, -1], c[0, :], c[-1, :])]
-        height = max(sides[2], sides[3])
-        if height > sliver and min(sides[0], sides[1]) > _STRIP * height:
-            out.append(p)
-    return out
+    return _long_thin(fr, sliver, (2, 3))
 
 
 def _band_cuts(fr: FaceResult, bands: list[Patch], free: dict[int, set[float]], veps: float,
