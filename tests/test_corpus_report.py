@@ -101,5 +101,6 @@ def test_fusee_reads_back_with_every_face_untrimmed(tmp_path):
     report = convert_file(str(corpus_path(name)), str(tmp_path / "f.step"), Tolerances(), "full")
     after = report["after"]
     assert report["invariants"]["I1"]
-    assert after["read_back"] and after["untrimmed_bezier_faces"] == after["faces"] > 12000
+    # 11030 faces since spare knots are dropped on reading (703835e); 17387 before 5f48509
+    assert after["read_back"] and after["untrimmed_bezier_faces"] == after["faces"] > 10000
     assert after["free_edges"] == 0 and after["gap_max_relative"] <= 1e-9

@@ -1055,3 +1055,16 @@ def test_a_rung_a_hair_past_its_piece_takes_the_edge_through_the_next_piece():
     assert ref.wa == pytest.approx(-0.5, abs=1e-15) and ref.wb == pytest.approx(-0.9, abs=1e-15)
     # a rung on no piece's line finds none
     assert S._rung_ref(pieces, np.array([0.3, 0.5]), np.array([0.3, 0.9]), eps) is None
+
+
+def test_a_rational_guide_is_measured_in_space():
+    """A long side's guided piece may run along a rational edge curve (fusee, after 4f07725 laid a
+    lone pcurve piece on its slab line): its feet on the guide are points, not homogeneous rows."""
+    from watertight_cli.substitute import _guide_gap
+
+    row = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    w = np.array([1.0, 2.0, 1.0])  # a quarter circle's weights, on a straight line: still the line
+    K = np.concatenate([row * w[:, None], w[:, None]], 1)
+    assert _guide_gap(row, [(0.0, 1.0, K)]) < 1e-12
+    bent = row + np.array([[0.0, 0.0, 0.0], [0.0, 0.3, 0.0], [0.0, 0.0, 0.0]])
+    assert _guide_gap(bent, [(0.0, 1.0, K)]) > 0.1

@@ -1740,14 +1740,20 @@ def _guides(row: np.ndarray, shorts: list, ends: list, j: int, guide, near: floa
 _GUIDE_GRID = np.linspace(0.0, 1.0, 65)
 
 
+def _guide_points(K: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Points of a guide curve, polynomial (k, 3) or homogeneous (k, 4), at parameters ``s``."""
+    return rational_curve_eval(K, s) if K.shape[1] == 4 else curve_eval(K, s)
+
+
 def _guide_feet(row: np.ndarray, guides: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The row's samples on its guided pieces: parameters, points, and their feet on the guides."""
+    """The row's samples on its guided pieces: parameters, points, and their feet on the guides
+    (which may be rational: fusee's guide edge was, and its homogeneous points met the row's)."""
     tau = np.concatenate([a + (b - a) * _GUIDE_GRID for a, b, _ in guides])
     pts = curve_eval(row, tau)
     feet = []
     for (_, _, K), chunk in zip(guides, np.split(pts, len(guides)), strict=True):
         s, _ = project(_homog(K), chunk)
-        feet.append(curve_eval(K, s))
+        feet.append(_guide_points(K, s))
     return tau, pts, np.concatenate(feet)
 
 
@@ -1775,7 +1781,7 @@ def _through_guided(row: np.ndarray, ts: np.ndarray, targets: np.ndarray, guides
     # the guides' points at the row's parameter mapped affinely (a piece cut from the same curve
     # as the guide keeps its parameter), and the feet of the row's points on them (any other
     # parameter); whichever fit comes closer is kept
-    along = np.concatenate([curve_eval(K, _GUIDE_GRID) for _, _, K in guides])
+    along = np.concatenate([_guide_points(K, _GUIDE_GRID) for _, _, K in guides])
     delta = targets - curve_eval(row, ts) if len(ts) else np.zeros((0, 3))
     scale = max(float(np.linalg.norm(feet - pts, axis=1).max()),
                 float(np.linalg.norm(delta, axis=1).max()) if len(ts) else 0.0)

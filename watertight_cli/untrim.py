@@ -89,6 +89,9 @@ _TANGENT_RUNG = 1e-3
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
+#: share of ``Tolerances.thin_rel`` within which a lone piece that turns back on a slab line is
+#: laid on it (``_flatten_runs``)
+_LONE = 0.25
 _ROOT_SAMPLES = 48
 _COMPACT_DIFF = 1e-8  # relative size of a power coefficient that counts as zero (differences lose ~2^d)
 _COMPACT_REL = 1e-13  # bound (relative to the patch size) below which a degree reduction changes nothing
@@ -1535,7 +1538,7 @@ def _flatten(chains, g: _FaceGeometry, budget: float) -> tuple[dict[int, tuple],
             if vals[0] is None and g.su > 0:
                 # in u only: slabs need near-vertical stretches to be vertical; in v a moved end
                 # could cross a knot line that the edge plan cut at before
-                worst = max(worst, g.su * _flatten_runs(ps, 0, budget / g.su, g.thin / g.su))
+                worst = max(worst, g.su * _flatten_runs(ps, 0, budget / g.su, _LONE * g.thin / g.su))
     return fixed, worst
 
 
@@ -1544,15 +1547,17 @@ def _flatten_runs(ps: list[_Piece], axis: int, half: float, single: float = 0.0)
     coordinate stays in a band of half-width ``half`` (a stretch of a long pcurve that runs along
     an iso-line and wiggles around it); the neighbours' adjoining end points move onto the line.
 
-    A piece alone is flattened when its band is narrower than ``single`` (``Tolerances.thin_rel``
-    in 3D), it has a neighbour on the coedge at both ends and the pcurve turns back at one of them
+    A piece alone is flattened when its band is narrower than ``single`` (``_LONE`` x
+    ``Tolerances.thin_rel`` in 3D), it has a neighbour on the coedge at both ends and the pcurve
+    turns back at one of them
     (``_turning_end``): as it is, its two ends stand on two slab lines that close, and the cells
     between them are a strip below the tolerance all along the face (bspline_boolean face 0: a
     pcurve's extremum and its knot 6e-5 further in v stood 3e-8 apart in u, a strip 3e-6 wide and
     33 long). It goes onto the line through the turning end, so the neighbour there stays
     monotone. A short piece inside a bend is left alone: it is not near an iso-line, only short,
     and made iso (ec_turbine has 17 such, 2e-6 to 1e-5 long) it left sides 1.3e-7 off their
-    neighbours (I2).
+    neighbours (I2). Up to the whole thin width, fusee's 18 such pieces left 4 free edges (I3);
+    up to a quarter of it (bspline_boolean's piece takes 0.17), none.
     Returns the largest move in uv (a band's half-width), 0.0 when nothing moved."""
     worst_band = 0.0
     i, n = 0, len(ps)
