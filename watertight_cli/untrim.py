@@ -1549,8 +1549,8 @@ def _flatten_runs(ps: list[_Piece], axis: int, half: float, single: float = 0.0)
 
     A piece alone is flattened when its band is narrower than ``single`` (``_LONE`` x
     ``Tolerances.thin_rel`` in 3D), it has a neighbour on the coedge at both ends and the pcurve
-    turns back at one of them
-    (``_turning_end``): as it is, its two ends stand on two slab lines that close, and the cells
+    turns back at one of them (``_turning_end``): as it is, its two ends stand on two slab lines
+    that close, and the cells
     between them are a strip below the tolerance all along the face (bspline_boolean face 0: a
     pcurve's extremum and its knot 6e-5 further in v stood 3e-8 apart in u, a strip 3e-6 wide and
     33 long). It goes onto the line through the turning end, so the neighbour there stays
@@ -1973,33 +1973,34 @@ def _bands(fr: FaceResult, sliver: float) -> list[Patch]:
     return _long_thin(fr, sliver, (2, 3))
 
 
-def _band_cuts(fr: FaceResult, bands: list[Patch], free: dict[int, set[float]], veps: float,
-               ueps: float) -> dict[int, set[float]]:
-    """Per edge, the plan cuts in ``free`` that end a band: an end of the band's bottom or top that is
-    the end of an iso piece (a rung along an edge) at that plan parameter."""
-    out: dict[int, set[float]] = {}
-    ends = []
-    for q in fr.iso_pieces:
-        if q.edge is None or q.edge not in free:
-            continue
-        for k, w in ((0, q.w0), (-1, q.w1)):
-            ends.append((float(q.H[k, 0] / q.H[k, 2]), float(q.H[k, 1] / q.H[k, 2]), q.edge, float(w)))
+def _drop_free_cut(drops: dict[int, set[float]], free: dict[int, set[float]], model: Model, e: int,
+                   w: float) -> None:
+    """Add to ``drops`` the plan cut of ``free`` on edge ``e`` at parameter ``w`` (to 1e-9 of the
+    edge's range), if there is one."""
+    ws = np.array(sorted(free[e]))
+    edge = model.edges[e]
+    k = int(np.argmin(np.abs(ws - w)))
+    if abs(ws[k] - w) <= 1e-9 * max(edge.last - edge.first, 1e-300):
+        drops.setdefault(e, set()).add(float(ws[k]))
+
+
+def _band_cuts(drops: dict[int, set[float]], fr: FaceResult, bands: list[Patch], free: dict[int, set[float]],
+               model: Model, veps: float, ueps: float) -> None:
+    """Add to ``drops`` the plan cuts in ``free`` that end a band: an end of the band's bottom or top
+    that is the end of an iso piece (a rung along an edge) at that plan parameter."""
+    ends = [(float(q.H[k, 0] / q.H[k, 2]), float(q.H[k, 1] / q.H[k, 2]), q.edge, float(w))
+            for q in fr.iso_pieces if q.edge is not None and q.edge in free
+            for k, w in ((0, q.w0), (-1, q.w1))]
     if not ends:
-        return out
+        return
     E = np.array([e[:2] for e in ends])
     for p in bands:
         for side in (p.bottom, p.top):
             for k in (0, -1):
                 x = side.H[k, :2] / side.H[k, 2]
-                hit = np.flatnonzero((np.abs(E[:, 0] - x[0]) <= 2 * ueps) & (np.abs(E[:, 1] - x[1]) <= veps))
-                for h in hit:
-                    _, _, e, w = ends[h]
-                    ws = np.array(sorted(free[e]))
-                    m = int(np.argmin(np.abs(ws - w)))
-                    edge_eps = 1e-9 * max(abs(w), 1.0)
-                    if abs(ws[m] - w) <= edge_eps:
-                        out.setdefault(e, set()).add(float(ws[m]))
-    return out
+                at = (np.abs(E[:, 0] - x[0]) <= 2 * ueps) & (np.abs(E[:, 1] - x[1]) <= veps)
+                for h in np.flatnonzero(at):
+                    _drop_free_cut(drops, free, model, ends[h][2], ends[h][3])
 
 
 def _droppable_cuts(face: Face, model: Model, plan: dict[int, np.ndarray],
@@ -2050,19 +2051,13 @@ def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], f
     except UntrimError:
         return fr, {}
     drops: dict[int, set[float]] = {}
-    for e, ws in _band_cuts(fr, bands, free, g.veps, g.ueps_lines).items():
-        drops.setdefault(e, set()).update(ws)
+    _band_cuts(drops, fr, bands, free, model, g.veps, g.ueps_lines)
     for p in strips:
         for side in (p.bottom, p.top):
             if side.iso or side.edge is None or side.edge not in free:
                 continue
-            ws = np.array(sorted(free[side.edge]))
-            edge = model.edges[side.edge]
-            eps = 1e-9 * max(edge.last - edge.first, 1e-300)
             for w in (side.w0, side.w1):
-                k = int(np.argmin(np.abs(ws - w)))
-                if abs(ws[k] - w) <= eps:
-                    drops.setdefault(side.edge, set()).add(float(ws[k]))
+                _drop_free_cut(drops, free, model, side.edge, w)
     if not drops:
         return fr, {}
     again = _face_or_problem(face, model, _plan_without(plan, drops), tol, g)
