@@ -263,3 +263,22 @@ def test_written_file_gets_the_usual_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert out.stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_max_aspect_cuts_slender_patches(tmp_path):
+    """open_sheet's stage 1 leaves strips more than 100 times longer than wide: by default they are
+    cut across (more patches, every invariant kept); --max-aspect inf keeps them whole."""
+    reps = {}
+    for opt in ("100", "inf"):
+        out = tmp_path / f"sheet_{opt}.step"
+        result = run("convert", "--max-aspect", opt, "--json", "-q", str(fixture_path("open_sheet.step")),
+                     str(out))
+        assert result.exit_code == EXIT_OK, result.output
+        reps[opt] = json.loads(result.stdout)
+        assert reps[opt]["ok"] and all(reps[opt]["invariants"].values())
+    cut, whole = reps["100"]["after"], reps["inf"]["after"]
+    assert whole["slender_patches_cut"] == 0 and cut["slender_patches_cut"] > 0
+    assert cut["slender_bound_max"] <= 1e-10 * reps["100"]["diagonal"]
+    added = cut["slender_pieces"] - cut["slender_patches_cut"]
+    assert reps["100"]["patches_out"] == reps["inf"]["patches_out"] + added
+    assert run("convert", "--max-aspect", "1", "x.step", "y.step").exit_code == EXIT_USAGE

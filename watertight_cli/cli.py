@@ -262,6 +262,12 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
               show_default=True, metavar="REL",
               help="Allowed deviation where approximation is needed, relative to the model's "
                    "bounding-box diagonal (1e-6: one micron on a one-metre part).")
+@click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=100.0,
+              show_default=True, metavar="RATIO",
+              help="Longest a patch may be for its width. Stage 1 leaves strips thousands of times "
+                   "longer than wide where knot lines or trimming curves run close together; such "
+                   "a strip is cut across into shorter pieces (the same surface to rounding, its "
+                   "neighbours' edges split at the cuts). 'inf' keeps them whole.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the conversion report as JSON on stdout (batch: the --report document).")
 @click.option("--overwrite/--no-overwrite", default=None,
@@ -295,7 +301,7 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
               help="One-file form: also write a self-contained HTML page to PATH: gaps before and after, "
                    "worst edges, pictures before and after, degrees and deviation per face, settings and "
                    "times.")
-def convert(paths, output_dir, stage, max_degree, tolerance, as_json, overwrite, fast, max_gap,
+def convert(paths, output_dir, stage, max_degree, tolerance, max_aspect, as_json, overwrite, fast, max_gap,
             max_deviation, quiet, html_path, **batch_opts):
     """Convert STEP or IGES models into watertight models of untrimmed Bezier patches.
 
@@ -326,7 +332,7 @@ def convert(paths, output_dir, stage, max_degree, tolerance, as_json, overwrite,
     """
     from .tolerances import Tolerances
 
-    tol = Tolerances(approx_rel=tolerance, max_degree=max_degree)
+    tol = Tolerances(approx_rel=tolerance, max_degree=max_degree, slender_ratio=max_aspect)
     if output_dir is not None and html_path:
         _err("--html needs the one-file form: IN OUT")
         sys.exit(EXIT_USAGE)
@@ -427,7 +433,8 @@ def _convert_batch(paths, output_dir, tol, stage, as_json, overwrite, fast, max_
         _err("--scheduler needs --executor dask")
         return EXIT_USAGE
     n_jobs = jobs or _cores()
-    options = {"stage": stage, "tolerance": tol.approx_rel, "max_degree": tol.max_degree, "fast": fast,
+    options = {"stage": stage, "tolerance": tol.approx_rel, "max_degree": tol.max_degree,
+               "max_aspect": tol.slender_ratio, "fast": fast,
                "overwrite": overwrite, "recursive": recursive, "format": fmt, "output_dir": output_dir,
                "jobs": n_jobs, "timeout": timeout, "max_memory": max_memory, "executor": executor,
                "max_gap": max_gap, "max_deviation": max_deviation}

@@ -41,6 +41,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     t = time.perf_counter()
     tick = progress("build", len(result.patches)) if progress else None
     nets, quads = _untriangle(result, tol, model.diagonal)
+    slender = _cut_slender(result, nets, quads, tol, model.diagonal)
     groups, fallbacks = [], []
     for faces, solid, _ in in_groups:
         items = [(c, r, model.faces[i].reversed, was) for i in faces for c, r, was in nets[i]]
@@ -95,6 +96,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
 
     report.update({
         "stage": "full",
+        "patches_out": len(degrees),  # as built: remade triangles and slender pieces included
         "degree": {
             "max": max(degrees, default=0),
             "median": sorted(degrees)[len(degrees) // 2] if degrees else 0,
@@ -119,7 +121,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "edge_gaps": edge_gap_rows(ins.gaps),
         },
         "after": {
-            "faces": len(result.patches),
+            "faces": len(degrees),
             "shells": joined["shells"],
             "solids": joined["solids"],
             "free_edges_after_join": joined["free_edges"],
@@ -138,6 +140,12 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "triangles_kept": quads["kept"],
             "triangles_reverted": joined["triangles_reverted"],
             "triangle_deviation_max": quads["deviation_max"],
+            # patches more than ``Tolerances.slender_ratio`` times longer than wide, cut across
+            # into shorter pieces within a tenth of the exactness tolerance (``core.slender``)
+            "slender_patches_cut": slender["cut"],
+            "slender_pieces": slender["pieces"],
+            "slender_bound_max": slender["bound_max"],
+            "slender_degree_raised": slender["degree_raised"],
             "edge_deviation_max": joined["edge_deviation_max"],
             "valid": valid,
             "volume": vol_out,
@@ -207,6 +215,87 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
                 face.append((ctrl, rational, was))
         nets.append(face)
     return nets, info
+
+
+def _cut_slender(result, nets: list, quads: dict, tol: Tolerances, diagonal: float) -> dict:
+    """Cut every patch (of ``_untriangle``'s nets, in place) that is more than
+    ``tol.slender_ratio`` times longer than wide across into shorter pieces (``core.slender``),
+    each within a tenth of the exactness tolerance of it; that bound joins its face's deviation
+    (``quads["per_face"]``). Remade triangles stay whole (the build may put their triangle back),
+    and so do slivers narrower than ``tol.thin_rel`` (I5 counts those; cutting them would make
+    thousands of pieces)."""
+    from .core.slender import cut_slender
+    from .topology import JOIN_REL
+
+    info = {"cut": 0, "pieces": 0, "bound_max": 0.0, "degree_raised": 0}
+    floor, budget = tol.thin_rel * diagonal, 0.1 * tol.exact_rel * diagonal
+    snap = _Vertices([(c, r) for face in nets for c, r, _ in face])
+    for fr, face in zip(result.faces, nets, strict=True):
+        out, worst = [], 0.0
+        for ctrl, rational, was in face:
+            made = None if was is not None else cut_slender(
+                ctrl, rational, tol.slender_ratio, floor, budget, tol.max_degree, snap, JOIN_REL * diagonal)
+            if made is None:
+                out.append((ctrl, rational, was))
+                continue
+            info["cut"] += 1
+            info["pieces"] += len(made.pieces)
+            info["degree_raised"] += made.degree_raised
+            worst = max(worst, made.bound)
+            out.extend((c, rational, None) for c in made.pieces)
+            snap.add([(c, rational) for c in made.pieces])
+        face[:] = out
+        if worst > 0.0:
+            quads["per_face"][fr.face] = quads["per_face"].get(fr.face, 0.0) + worst
+        info["bound_max"] = max(info["bound_max"], worst)
+    return info
+
+
+def _net_corners(nets: list[tuple[np.ndarray, bool]]) -> np.ndarray:
+    """The four corner points of each net (Cartesian), (4 k, 3)."""
+    pts = [c[[0, -1, 0, -1], [0, 0, -1, -1]] for c, _ in nets]
+    pts = [p[:, :-1] / p[:, -1:] if r else p for p, (_, r) in zip(pts, nets, strict=True)]
+    return np.concatenate(pts) if pts else np.zeros((0, 3))
+
+
+class _Vertices:
+    """The patches' corners, and those of pieces added since, for ``core.slender``'s snapping:
+    called with points (k, 3) and radii (k,), it returns the nearest corner within each radius,
+    or NaNs. Added corners go into a k-d tree of their own, remade once 256 wait outside it."""
+
+    def __init__(self, nets: list[tuple[np.ndarray, bool]]):
+        self.trees = []
+        self.loose = np.zeros((0, 3))
+        self._tree(_net_corners(nets))
+
+    def _tree(self, pts: np.ndarray) -> None:
+        from scipy.spatial import cKDTree
+
+        if len(pts):
+            self.trees.append((cKDTree(pts), pts))
+
+    def add(self, nets: list[tuple[np.ndarray, bool]]) -> None:
+        self.loose = np.concatenate([self.loose, _net_corners(nets)])
+        if len(self.loose) >= 256:
+            added = [pts for _, pts in self.trees[1:]] + [self.loose]
+            self.trees = self.trees[:1]
+            self._tree(np.concatenate(added))
+            self.loose = np.zeros((0, 3))
+
+    def __call__(self, pts: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        out = np.full(pts.shape, np.nan)
+        best = np.full(len(pts), np.inf)
+        for tree, tpts in self.trees:
+            d, i = tree.query(pts)
+            hit = (d <= radius) & (d < best)
+            out[hit], best[hit] = tpts[i[hit]], d[hit]
+        if len(self.loose):
+            d = np.linalg.norm(pts[:, None, :] - self.loose[None], axis=2)
+            j = d.argmin(axis=1)
+            dj = d[np.arange(len(pts)), j]
+            hit = (dj <= radius) & (dj < best)
+            out[hit] = self.loose[j[hit]]
+        return out
 
 
 class _Corners:

@@ -58,6 +58,14 @@ class Tolerances:
         strip narrower than that is below what the tolerance resolves, and as a patch 4e-5 wide
         and 42 long (trj8's planar faces 40 and 49, where a neighbour's cuts land 4e-5 apart in u)
         it is a face that BRepMesh leaves partly untriangulated.
+    slender_ratio:
+        Longest a finished patch may be for its width (a ratio, not relative to the diagonal):
+        longer ones are cut across into exact pieces (``core.slender``). Stage 1 leaves strips
+        thousands of times longer than wide where slab lines or knot lines run close together. A
+        checker that samples every edge at a fixed count (the independent one takes 272) then
+        finds a third face's boundary nearer than the neighbour's samples once the neighbour's
+        edge is about 540 times longer than the strip is wide; 100 keeps a margin of five, and
+        meshers get triangles no worse than that.
     max_degree:
         Largest patch degree (``--max-degree``). 25 is OCCT's Bezier limit
         (``Geom_BezierSurface::MaxDegree``).
@@ -74,6 +82,7 @@ class Tolerances:
     sew_max_rel: float = 2e-2
     sliver_rel: float = 1e-8
     thin_rel: float = 5e-7
+    slender_ratio: float = 100.0
     max_degree: int = 25
     strict: bool = False
 
@@ -85,6 +94,8 @@ class Tolerances:
             raise ValueError(f"max_degree must be in 1..{self.OCCT_MAX_DEGREE} (OCCT's Bezier limit)")
         if self.approx_rel <= 0:
             raise ValueError("tolerance must be positive")
+        if self.slender_ratio <= 1:
+            raise ValueError("slender_ratio must be above 1")
         if self.gap_samples < 3:
             raise ValueError("gap_samples must be at least 3")
 

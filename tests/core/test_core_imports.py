@@ -5,7 +5,8 @@ import sys
 
 CODE = (
     "import watertight_cli.core.bernstein, watertight_cli.core.bezier, watertight_cli.core.bspline, "
-    "watertight_cli.core.compose, watertight_cli.core.approx, watertight_cli.core.reduce, sys; "
+    "watertight_cli.core.compose, watertight_cli.core.approx, watertight_cli.core.reduce, "
+    "watertight_cli.core.slender, sys; "
     "assert not any(m.startswith('OCP') for m in sys.modules), "
     "[m for m in sys.modules if m.startswith('OCP')]"
 )
