@@ -471,7 +471,9 @@ def format_full_table(rep: dict) -> str:
         f"{rep['file']} -> {rep['output'] or '(not written)'}",
         f"  faces in {rep['faces_in']}, patches out {rep['patches_out']}, degree max {rep['degree']['max']} "
         f"median {rep['degree']['median']:g}, T-junctions {rep['t_junctions']}, "
-        f"thin patches {rep.get('thin_patches', 0)}",
+        f"thin patches {rep.get('thin_patches', 0)}"
+        + (f", slender patches cut {a['slender_patches_cut']} into {a['slender_pieces']}"
+           if a.get("slender_patches_cut") else ""),
         f"  gap: before {b['gap_max']:.3g} -> after "
         + (f"{a['gap_max']:.3g} ({a['gap_max'] / d:.2g} of the diagonal)" if "gap_max" in a
            else "(not read back)"),
