@@ -154,10 +154,19 @@ def _stations(net: np.ndarray, rational: bool, ratio: float, floor: float, snap,
     _, lo, hi = _long_sides(net, rational, _COARSE)
     aspect = np.linalg.norm(np.diff(lo, axis=0), axis=1).sum() / max(_to_polyline(lo, hi)[0].min(), floor)
     n = int(min(_FINE_MAX, _STEP * np.ceil(aspect / ratio) + _COARSE))
-    s, lo, hi = _long_sides(net, rational, n)
-    width, foot = _to_polyline(lo, hi)
-    if float(width.min()) <= floor:
-        return None
+    while True:
+        s, lo, hi = _long_sides(net, rational, n)
+        width, foot = _to_polyline(lo, hi)
+        if float(width.min()) <= floor:
+            return None
+        # where the strip narrows between the coarse samples (a pinch), one fine step may be
+        # near as long as a piece there may be: sample finer, up to the cap
+        step = np.linalg.norm(np.diff(lo, axis=0), axis=1)
+        short = step / (ratio * np.minimum(width[:-1], width[1:]))
+        want = int(min(_FINE_MAX, np.ceil((n - 1) * _STEP * float(short.max())) + 1))
+        if float(short.max()) <= 0.5 or want <= n:
+            break
+        n = want
     length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(lo, axis=0), axis=1))])
     # side 1 measured too, at the feet of side 0's samples: where the strip ends slanted, side 1's
     # first and last pieces are longer than side 0's by the slant
