@@ -3,7 +3,7 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: install test test-slow lint bench fixtures clean
+.PHONY: install test test-slow test-explore lint bench fixtures clean
 
 install:
 	$(PY) -m venv $(VENV)
@@ -12,6 +12,9 @@ install:
 
 test:
 	$(BIN)/python -m pytest -q
+
+test-explore:
+	$(BIN)/python -m pytest -q tests/core tests/test_substitute.py tests/test_untrim.py --hypothesis-profile=explore
 
 test-slow:
 	$(BIN)/python -m pytest -q -m slow
