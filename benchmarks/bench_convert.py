@@ -50,7 +50,7 @@ SUFFIXES = (".step", ".stp", ".igs", ".iges")
 RESULTS = ROOT / "benchmarks" / "results.json"
 #: the issue's stage names and the keys of the conversion report's ``timings`` that make them up
 STAGES = {"read": ("read",), "plan": ("plan",), "cells": ("cells",), "reparam": ("reparam",),
-          "conform": ("substitute",), "build": ("build",), "write": ("write",),
+          "conform": ("substitute", "slender"), "build": ("build",), "write": ("write",),
           "verify": ("verify", "verify_written")}
 DEFAULT_TOLERANCE = 1e-6  # the CLI's --tolerance default
 
