@@ -982,3 +982,22 @@ def test_plan_cuts_that_end_bands_are_left_out():
         if fr.face == 6:
             assert len(_bands(full, g.sliver)) >= 9 and not _bands(fr, g.sliver)
     assert after < before / 2
+
+
+def test_wedges_at_a_pole_are_one_cap_per_span(converted):
+    """sphere_cut_box.step: the notch's side walls run nearly along u = const in the sphere's
+    parameters, and their pcurves' pieces end on slab lines from 0.2014 to 0.22 and from 1.3508
+    to 1.3694 (a slab 0.0011 wide). Each slab was a wedge from the pole to the notch, 21 of them
+    at each pole, thin and converging (the independent checker matched 336 of their boundary
+    samples to the wrong wedge). Below a common v-iso cut the wedges of one knot span are one
+    cell now: one wedge per span of the sphere's u (four at each pole)."""
+    ins, res, check = converted["sphere_cut_box.step"]
+    assert check.ok, check.problems[:3]
+    sphere = next(fr for fr in res.faces if fr.pole_caps)
+    assert sphere.pole_caps == 2  # one at each pole, over the notched quarter
+    for k, v in ((0, -np.pi / 2), (1, np.pi / 2)):
+        wedges = [p for p in sphere.patches for side in (p.bottom, p.top)
+                  if side.degenerate and abs(float(side.H[0, 1] / side.H[0, 2]) - v) < 1e-9]
+        assert len(wedges) == 4, k
+        widths = sorted(float(np.ptp(p.bottom.H[:, 0] / p.bottom.H[:, 2])) for p in wedges)
+        assert widths == pytest.approx([np.pi / 2] * 4)

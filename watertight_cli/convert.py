@@ -187,6 +187,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
             "collapsed_rungs": fc.collapsed_rungs,
             "thin_patches": fc.thin,
             "plan_cuts_left_out": fr.strip_cuts,
+            "pole_caps": fr.pole_caps,
             "problems": fc.problems,
         })
     return {
@@ -213,6 +214,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
         "collapsed_rungs": sum(c.collapsed_rungs for c in check.faces),
         "thin_patches": sum(c.thin for c in check.faces),
         "plan_cuts_left_out": sum(f.strip_cuts for f in result.faces),
+        "pole_caps": sum(f.pole_caps for f in result.faces),
         "verified": check.ok,
         "faces": faces,
     }

@@ -86,6 +86,9 @@ _KNOT_SNAP = 4.0
 #: a cell's bottom and top both leave a rung with a u-speed under this share of the slab's width
 #: over their parameter: the patch's Jacobian (nearly) vanishes along that rung (``_tangent_rung_cuts``)
 _TANGENT_RUNG = 1e-3
+#: where a pole cap ends (``_pole_caps``): this share of the way from the pole to the lowest side or
+#: cut of its run's cells (not all the way: the cells beyond must not be slivers)
+_CAP = 0.8
 _MAX_SPLIT_DEPTH = 14  # halvings of a cell to meet the tolerance
 _MAX_FOLD_DEPTH = 6  # halvings of a folded cell before it is reported
 _FLATTEN = 0.5  # share of the tolerance that flattening near-iso pcurves may use (see _flatten)
@@ -157,6 +160,7 @@ class FaceResult:
     estimated: bool = False
     folds: int = 0
     local_cuts: int = 0
+    pole_caps: int = 0  # runs of wedges at a pole made one cell below a common cut (_pole_caps)
     strip_cuts: int = 0  # plan cuts left out because they ended strips across slabs (_without_strip_cuts)
     closure: float = 0.0  # deviation bound of closing the loops' uv gaps and snapping (model units)
     flattened: float = 0.0  # the part of ``closure`` spent on flattening near-iso pcurves (_flatten)
@@ -613,6 +617,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     inner_u = [float(x) for x in ub[1:-1] if lo + ueps < x < hi - ueps]
     ends = _ends_onto_knots(ends_uv, inner_u, face, g)
     knots = set(inner_u)
+    uknots = knots  # ``knots`` is reused for each cell's v cuts below
     first = _cluster(ends + inner_u, knots, ueps)
     # every end was clustered into a line: a piece runs from its first end's line to its last
     # end's line, so one rule decides both the lines and which pieces lie on a line
@@ -670,11 +675,13 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     near_ends = [] if rung_cuts == "none" else [
         (line, float(q.H[-k, 1] / q.H[-k, 2])) for _, a, b, q in parts for k, line in ((0, a), (1, b))]
     cells = []
+    owners: list[tuple[int, int] | None] = []  # per cell, the pieces of its bottom and top
     slants: dict[int, dict[float, float]] = {}  # per cell, its slanted cuts (``_slanted_cuts``)
     for j, jr, x, y in pairs:
         bot, top = parts[x][3], parts[y][3]
         cua, cub = float(lines[j]), float(lines[jr])
         uncrossed = _uncross(bot, top, g)
+        owners.append((parts[x][0], parts[y][0]) if uncrossed is None else None)
         if uncrossed is not None:
             fr.crossings.append(tuple(_tail(p, q) for p, q in zip((bot, top), uncrossed, strict=True)))
             bot, top = uncrossed
@@ -702,6 +709,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
                 slants[len(cells)] = slant
         knots = cuts
         cells.append([cua, cub, bside, tside, (b0, t0), (b1, t1), bv[1], tv[0], knots, j, jr])
+    caps = _pole_caps(cells, owners, lines, uknots, veps) if rung_cuts != "none" else []
     if rung_cuts != "none":
         _tangent_rung_cuts(cells, veps, slants)
         # the cuts made so far end on both rungs of their cells: those ends may fall near the end
@@ -709,6 +717,13 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
         # of it from its end, and the bend refused left a free edge)
         near_ends += [(line, v) for i, c in enumerate(cells) for line, v in _cut_points(c, slants.get(i))]
     _align_rungs(cells, near_ends, veps, slants)
+    capped: dict[int, set[bool]] = {}  # cell -> True: its lowest sub-cell is in a cap, False: its highest
+    for below, c, run in caps:
+        for members in _cap_runs(cells, run, below, c, veps):
+            for i in members:
+                capped.setdefault(i, set()).add(below)
+            fr.pole_caps += 1
+            yield _cap_cell(cells, members, below, c, crossing[owners[members[0]][0 if below else 1]])
     for i, (ua, ubb, bside, tside, left, right, _, _, knots, _, _) in enumerate(cells):
         slant = slants.get(i, {})
         inner = []
@@ -720,8 +735,87 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
                 ends = [[_rung_u(*left, c), c, 1.0], [_rung_u(*right, d), d, 1.0]]
                 inner.append(Side(np.array(ends), False))
         sides = [bside] + inner + [tside]
-        for s0, s1 in zip(sides[:-1], sides[1:], strict=True):
+        pairs_of = list(zip(sides[:-1], sides[1:], strict=True))
+        if i in capped:  # its sub-cells beside a pole are parts of caps
+            pairs_of = pairs_of[(True in capped[i]):len(pairs_of) - (False in capped[i])]
+        for s0, s1 in pairs_of:
             yield ua, ubb, s0, s1
+
+
+def _pole_caps(cells: list, owners: list, lines: np.ndarray, uknots: set[float],
+               veps: float) -> list[tuple[bool, float, list[int]]]:
+    """Runs of cells side by side whose bottom (or top) is one pole: the same degenerate v-iso piece,
+    cut only at slab lines that are no knot lines (the ends of the pieces on the other side put
+    them there). Each such cell is a wedge from the pole, and side by side they converge on it:
+    a sphere notched by a plane whose pcurve runs nearly along u = const
+    (``sphere_cut_box.step``) gave 21 wedges meeting at each pole, the narrowest 0.0011 rad wide, 336
+    of the independent checker's boundary samples unmatched, and 42 triangles for stage 2 to remake.
+    Every cell of a run is cut along one v-iso line c, ``_CAP`` of the way from the pole to the
+    lowest (highest) thing above (below) it in the run: its other side or a cut; below (above) c the
+    run is one cell, the cap (``_cap_runs``, ``_cap_cell``), whose side at c holds the corners of the
+    cells beyond as T-vertices. The cells beyond are no wedges but strips, cut across in stage 2
+    where they are slender (``core.slender``): the higher the cap, the shorter they are
+    (sphere_cut_box: 84 patches at 0.5, 60 at 0.8, 48 at 0.9). Returns (below, c, cell indices in
+    u order) per run of two cells or more; the cut c is added to each cell's cuts."""
+    caps = []
+    for below in (True, False):
+        k = 2 if below else 3  # the side at the pole
+        cand = sorted((i for i, cell in enumerate(cells) if owners[i] is not None
+                       and cell[k].degenerate and cell[k].iso and cell[1] > cell[0]),
+                      key=lambda i: cells[i][0])
+        runs: list[list[int]] = []
+        for i in cand:
+            last = runs[-1][-1] if runs else None
+            if (last is not None and cells[last][10] == cells[i][9]
+                    and float(lines[cells[i][9]]) not in uknots
+                    and owners[last][k - 2] == owners[i][k - 2]):
+                runs[-1].append(i)
+            else:
+                runs.append([i])
+        for run in runs:
+            if len(run) < 2:
+                continue
+            if below:
+                lo = max(cells[i][6] for i in run)
+                hi = min(min([cells[i][7]] + list(cells[i][8])) for i in run)
+            else:
+                lo = max(max([cells[i][6]] + list(cells[i][8])) for i in run)
+                hi = min(cells[i][7] for i in run)
+            if hi - lo <= 8.0 * veps:
+                continue
+            c = lo + _CAP * (hi - lo) if below else hi - _CAP * (hi - lo)
+            for i in run:
+                cells[i][8] = _merge_cuts(cells[i][8], [c], veps)
+            caps.append((below, c, run))
+    return caps
+
+
+def _cap_runs(cells: list, run: list[int], below: bool, c: float, veps: float) -> list[list[int]]:
+    """The stretches (two cells or more) of a pole cap's run whose cut nearest the pole is still c:
+    ``_align_rungs`` may have cut a cell between c and the pole since, and that cell stays whole."""
+    out: list[list[int]] = [[]]
+    for i in run:
+        cuts = cells[i][8]
+        nearest = (min(cuts) if below else max(cuts)) if cuts else None
+        if nearest is not None and abs(nearest - c) <= veps:
+            out[-1].append(i)
+        elif out[-1]:
+            out.append([])
+    return [m for m in out if len(m) >= 2]
+
+
+def _cap_cell(cells: list, members: list[int], below: bool, c: float, piece: _Piece):
+    """The cap of ``members`` (see ``_pole_caps``): (ua, ub, bottom, top), its side at the pole the
+    pole's piece from the first cell's rung to the last's, its other side the v-iso line c."""
+    first, last = cells[members[0]], cells[members[-1]]
+    ua, ub = first[0], last[1]
+    k = 2 if below else 3
+    a, b = first[k], last[k]
+    v = float(a.H[0, 1] / a.H[0, 2])
+    pole = Side(np.array([[a.H[0, 0] / a.H[0, 2], v, 1.0], [b.H[-1, 0] / b.H[-1, 2], v, 1.0]]), True,
+                piece.edge, a.w0, b.w1, True, piece.pcurve)
+    across = _iso_side(_rung_u(*first[4], c), _rung_u(*last[5], c), c)
+    return (ua, ub, pole, across) if below else (ua, ub, across, pole)
 
 
 def _cut_points(cell: list, slant: dict[float, float] | None) -> list[tuple[int, float]]:
