@@ -723,7 +723,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
             for i in members:
                 capped.setdefault(i, set()).add(below)
             fr.pole_caps += 1
-            yield _cap_cell(cells, members, below, c, crossing[owners[members[0]][0 if below else 1]])
+            yield _cap_cell(cells, members, below, c)
     for i, (ua, ubb, bside, tside, left, right, _, _, knots, _, _) in enumerate(cells):
         slant = slants.get(i, {})
         inner = []
@@ -804,7 +804,7 @@ def _cap_runs(cells: list, run: list[int], below: bool, c: float, veps: float) -
     return [m for m in out if len(m) >= 2]
 
 
-def _cap_cell(cells: list, members: list[int], below: bool, c: float, piece: _Piece):
+def _cap_cell(cells: list, members: list[int], below: bool, c: float):
     """The cap of ``members`` (see ``_pole_caps``): (ua, ub, bottom, top), its side at the pole the
     pole's piece from the first cell's rung to the last's, its other side the v-iso line c."""
     first, last = cells[members[0]], cells[members[-1]]
@@ -813,7 +813,7 @@ def _cap_cell(cells: list, members: list[int], below: bool, c: float, piece: _Pi
     a, b = first[k], last[k]
     v = float(a.H[0, 1] / a.H[0, 2])
     pole = Side(np.array([[a.H[0, 0] / a.H[0, 2], v, 1.0], [b.H[-1, 0] / b.H[-1, 2], v, 1.0]]), True,
-                piece.edge, a.w0, b.w1, True, piece.pcurve)
+                a.edge, a.w0, b.w1, True, a.pcurve)
     across = _iso_side(_rung_u(*first[4], c), _rung_u(*last[5], c), c)
     return (ua, ub, pole, across) if below else (ua, ub, across, pole)
 
