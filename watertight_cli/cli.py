@@ -262,7 +262,7 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
               show_default=True, metavar="REL",
               help="Allowed deviation where approximation is needed, relative to the model's "
                    "bounding-box diagonal (1e-6: one micron on a one-metre part).")
-@click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=100.0,
+@click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=250.0,
               show_default=True, metavar="RATIO",
               help="Longest a patch may be for its width. Stage 1 leaves strips thousands of times "
                    "longer than wide where knot lines or trimming curves run close together; such "
