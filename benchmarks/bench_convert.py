@@ -43,6 +43,8 @@ import threading
 import time
 from pathlib import Path
 
+from watertight_cli.tolerances import Tolerances
+
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURES = ROOT / "fixtures"
 CORPUS = ROOT.parent / "shared" / "corpus"
@@ -52,7 +54,7 @@ RESULTS = ROOT / "benchmarks" / "results.json"
 STAGES = {"read": ("read",), "plan": ("plan",), "cells": ("cells",), "reparam": ("reparam",),
           "conform": ("substitute", "slender"), "build": ("build",), "write": ("write",),
           "verify": ("verify", "verify_written")}
-DEFAULT_TOLERANCE = 1e-6  # the CLI's --tolerance default
+DEFAULT_TOLERANCE = Tolerances().approx_rel  # the CLI's --tolerance default
 
 
 def model_files(corpus: bool = True) -> list[Path]:

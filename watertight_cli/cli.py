@@ -20,6 +20,11 @@ import sys
 
 import click
 
+from .tolerances import Tolerances
+
+#: the options' defaults are the tolerance object's, documented with their reasons there
+_DEFAULTS = Tolerances()
+
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_GATE = 0, 1, 2, 3
 
 EPILOG = """\b
@@ -146,7 +151,6 @@ def report(models, as_json, max_gap, samples, quiet, html_path):
 
     A table goes to stderr, worst edges first; --json prints the full report on stdout.
     """
-    from .tolerances import Tolerances
 
     tol = Tolerances(gap_samples=samples)
     run = RunReport()
@@ -255,14 +259,14 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
               help="full: untrimmed Bezier patches whose neighbours share one boundary curve "
                    "(a watertight B-rep). untrim: stage 1 only, patches that keep their faces' "
                    "shapes but share no edges.")
-@click.option("--max-degree", type=click.IntRange(1, 25), default=25, show_default=True,
+@click.option("--max-degree", type=click.IntRange(1, 25), default=_DEFAULTS.max_degree, show_default=True,
               help="Largest patch degree. Cells whose exact degree is higher are approximated within "
                    "--tolerance.")
-@click.option("--tolerance", type=click.FloatRange(min=0.0, min_open=True), default=1e-6,
+@click.option("--tolerance", type=click.FloatRange(min=0.0, min_open=True), default=_DEFAULTS.approx_rel,
               show_default=True, metavar="REL",
               help="Allowed deviation where approximation is needed, relative to the model's "
                    "bounding-box diagonal (1e-6: one micron on a one-metre part).")
-@click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=250.0,
+@click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=_DEFAULTS.slender_ratio,
               show_default=True, metavar="RATIO",
               help="Longest a patch may be for its width. Stage 1 leaves strips thousands of times "
                    "longer than wide where knot lines or trimming curves run close together; such "
@@ -330,7 +334,6 @@ def convert(paths, output_dir, stage, max_degree, tolerance, max_aspect, as_json
     the shared curve used per edge, and per face the deviation bound: stage 1's (approximation
     where the degree budget forced one, repairs of the input) plus the substitution's move.
     """
-    from .tolerances import Tolerances
 
     tol = Tolerances(approx_rel=tolerance, max_degree=max_degree, slender_ratio=max_aspect)
     if output_dir is not None and html_path:
