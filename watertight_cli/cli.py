@@ -151,7 +151,6 @@ def report(models, as_json, max_gap, samples, quiet, html_path):
 
     A table goes to stderr, worst edges first; --json prints the full report on stdout.
     """
-
     tol = Tolerances(gap_samples=samples)
     run = RunReport()
     pages = [] if html_path else None
@@ -334,7 +333,6 @@ def convert(paths, output_dir, stage, max_degree, tolerance, max_aspect, as_json
     the shared curve used per edge, and per face the deviation bound: stage 1's (approximation
     where the degree budget forced one, repairs of the input) plus the substitution's move.
     """
-
     tol = Tolerances(approx_rel=tolerance, max_degree=max_degree, slender_ratio=max_aspect)
     if output_dir is not None and html_path:
         _err("--html needs the one-file form: IN OUT")

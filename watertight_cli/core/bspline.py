@@ -219,6 +219,8 @@ def merge_removable_spans(knots, degree: int, ctrl, tol: float) -> tuple[np.ndar
     deviation by that). The result has each remaining break at multiplicity ``degree`` (C0 form, the
     same geometry); its valid range is the input's. Works along the first axis of ``ctrl``
     (homogeneous for NURBS: compare weights on the scale of the coordinates yourself)."""
+    if np.shape(ctrl)[0] == degree + 1:  # one span (every Bezier written as a B-spline): nothing to join
+        return None
     breaks, segs = to_bezier(knots, degree, ctrl)
     k = len(segs)
     if k < 2 or degree < 1:
