@@ -265,9 +265,10 @@ def test_written_file_gets_the_usual_permissions(tmp_path):
     assert out.stat().st_mode & 0o777 == 0o666 & ~mask
 
 
-def test_max_aspect_cuts_slender_patches(tmp_path):
-    """open_sheet's stage 1 leaves strips more than 100 times longer than wide: by default they are
-    cut across (more patches, every invariant kept); --max-aspect inf keeps them whole."""
+def test_max_aspect_splits_slender_patches_sides(tmp_path):
+    """open_sheet's stage 1 leaves strips more than 100 times longer than wide: by default their
+    long sides are split into shorter edges (the same patches, more vertices, every invariant
+    kept); --max-aspect inf leaves them as they are."""
     reps = {}
     for opt in ("100", "inf"):
         out = tmp_path / f"sheet_{opt}.step"
@@ -276,9 +277,10 @@ def test_max_aspect_cuts_slender_patches(tmp_path):
         assert result.exit_code == EXIT_OK, result.output
         reps[opt] = json.loads(result.stdout)
         assert reps[opt]["ok"] and all(reps[opt]["invariants"].values())
-    cut, whole = reps["100"]["after"], reps["inf"]["after"]
-    assert whole["slender_patches_cut"] == 0 and cut["slender_patches_cut"] > 0
-    assert cut["slender_bound_max"] <= 1e-10 * reps["100"]["diagonal"]
-    added = cut["slender_pieces"] - cut["slender_patches_cut"]
-    assert reps["100"]["patches_out"] == reps["inf"]["patches_out"] + added
+    split, whole = reps["100"]["after"], reps["inf"]["after"]
+    assert whole["slender_patches_split"] == 0 and split["slender_patches_split"] > 0
+    assert split["slender_split_vertices"] > split["slender_patches_split"]
+    assert reps["100"]["patches_out"] == reps["inf"]["patches_out"]
+    assert split["t_vertices"] == whole["t_vertices"]
+    assert reps["100"]["deviation_after_max"] == reps["inf"]["deviation_after_max"]
     assert run("convert", "--max-aspect", "1", "x.step", "y.step").exit_code == EXIT_USAGE

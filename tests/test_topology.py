@@ -368,3 +368,88 @@ def test_a_remade_patch_that_leaves_a_side_free_goes_back():
     assert info["free_edges"] == 6  # the outer boundary only: a and b share their side
     _, info, _ = join([(nets, False)], 5.0, "test")
     assert info["triangles_reverted"] == 0 and info["free_edges"] == 8
+
+
+@given(where=st.lists(st.floats(0.02, 0.98), min_size=1, max_size=5), bump=st.floats(-1.0, 1.0),
+       flip=st.booleans())
+@settings(max_examples=25, deadline=None)
+def test_split_puts_points_into_the_shared_edge(where, bump, flip):
+    """Points on a shared side become vertices inside its edge: both patches' sides take the same
+    pieces (no T-vertex), each piece maps both members onto the same curve, and points off every
+    edge change nothing."""
+    from watertight_cli.core.bezier import curve_eval
+
+    low, up = _net(0, 1, 0, 0.5, bump=bump), _net(0, 1, 0.5, 1, bump=bump)
+    if flip:
+        up = up[::-1].copy()  # its bottom runs the other way
+    pts = curve_eval(low[:, -1], np.array(where))
+    off = pts[:1] + np.array([[0.0, 0.0, 0.1]])
+    topo = connect([(low, False), (up, False)], EPS, np.concatenate([pts, off]))
+    w = np.sort(where)
+    expect = 2 + int(np.sum(np.diff(w) > 1e-8))  # points a hair apart (4 long: within 4 eps) are one
+    top, bottom = topo.wires[0]["top"], topo.wires[1]["bottom"]
+    assert len(top) == len(bottom) == expect
+    assert topo.t_vertices == 0 and topo.split_pieces == 2 * (expect - 1)
+    assert len(topo.vertices) == 6 + expect - 1
+    assert {e for e, _ in top} == {e for e, _ in bottom}
+    for e_id, _ in top:
+        e = topo.edges[e_id]
+        assert len(e.members) == 2
+        a = np.linspace(0.0, 1.0, 7)
+        own = curve_eval(low[:, -1], e.t0 + a * (e.t1 - e.t0))
+        for m in e.members:
+            row = (low[:, -1] if m.patch == 0 else up[:, 0])
+            got = curve_eval(row, m.s0 + a * (m.s1 - m.s0))
+            assert np.linalg.norm(got - own, axis=1).max() <= 1e-12
+    # each side's pieces run in increasing side parameter and cover it
+    for p, side in ((0, "top"), (1, "bottom")):
+        spans = []
+        for e_id, k in topo.wires[p][side]:
+            m = topo.edges[e_id].members[k]
+            spans.append((min(m.s0, m.s1), max(m.s0, m.s1)))
+        assert spans[0][0] == 0.0 and spans[-1][1] == 1.0
+        assert all(a[1] == b[0] for a, b in zip(spans[:-1], spans[1:], strict=True))
+
+
+def test_split_keeps_a_moebius_member_on_its_curve():
+    """A member whose side runs at another speed (rational, Moebius map): each piece's member has
+    the map restricted to it, still on the owner's curve to rounding."""
+    w = np.array([1.0, 0.7, 1.3, 1.0])
+    row = np.array([[0, 0, 0], [1, 0.5, 0], [2, 0.2, 0.3], [3, 0, 0]], float)
+    H = np.concatenate([row * w[:, None], w[:, None]], axis=1)
+    H2 = H * (1.6 ** np.arange(4))[:, None]
+    up = np.array([0.0, 0.0, 1.0, 0.0])
+    a, b = np.stack([H, H + up], axis=1), np.stack([H2, H2 + up], axis=1)[:, ::-1]
+    from watertight_cli.topology import _evaluate, _moebius, side_row
+
+    pts = _evaluate(side_row(a, True, "bottom"), np.array([0.3, 0.55]))
+    topo = connect([(a, True), (b, True)], EPS, pts)
+    pieces = [topo.edges[e] for e, _ in topo.wires[0]["bottom"]]
+    assert len(pieces) == 3 and topo.t_vertices == connect([(a, True), (b, True)], EPS).t_vertices
+    g = np.linspace(0.0, 1.0, 9)
+    for e in pieces:
+        own = _evaluate(side_row(a, True, "bottom"), e.t0 + g * (e.t1 - e.t0))
+        other = e.members[1]
+        assert other.w != 1.0
+        got = _evaluate(side_row(b, True, other.side), _moebius(g, other.s0, other.s1, other.w))
+        assert np.linalg.norm(got - own, axis=1).max() <= 1e-12
+
+
+def test_split_sides_build_a_valid_face(tmp_path, tol):
+    """A shared side split at two points, built and written: valid, read back untrimmed, the
+    shared side three edges used twice each."""
+    from watertight_cli.core.bezier import curve_eval
+    from watertight_cli.inspect import inspect, trimmed
+    from watertight_cli.occ.assemble import is_valid, join
+    from watertight_cli.occ.io import write_shape
+
+    nets = [_net(0, 1, 0, 0.5, bump=0.4), _net(0, 1, 0.5, 1, bump=0.4)]
+    pts = curve_eval(nets[0][:, -1], np.array([0.25, 0.6]))
+    shape, info, _ = join([([(n, False, False) for n in nets], False)], 5.0, "test", splits=pts)
+    assert is_valid(shape)
+    assert info["shells"] == 1 and info["t_vertices"] == 0 and info["free_edges"] == 6
+    out = tmp_path / "s.step"
+    write_shape(shape, out)
+    m = inspect(str(out), tol).model
+    assert len(m.faces) == 2 and not any(trimmed(f) for f in m.faces)
+    assert sum(1 for e in m.edges if e.uses == 2) == 3

@@ -267,10 +267,11 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
                    "bounding-box diagonal (1e-6: one micron on a one-metre part).")
 @click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=_DEFAULTS.slender_ratio,
               show_default=True, metavar="RATIO",
-              help="Longest a patch may be for its width. Stage 1 leaves strips thousands of times "
-                   "longer than wide where knot lines or trimming curves run close together; such "
-                   "a strip is cut across into shorter pieces (the same surface to rounding, its "
-                   "neighbours' edges split at the cuts). 'inf' keeps them whole.")
+              help="Longest an edge along a patch may be for the patch's width. Stage 1 leaves "
+                   "strips thousands of times longer than wide where knot lines or trimming curves "
+                   "run close together; the long sides of such a strip, and its neighbours' sides "
+                   "there, are split into shorter edges at the same points (the patches stay as "
+                   "they are). 'inf' leaves them unsplit.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the conversion report as JSON on stdout (batch: the --report document).")
 @click.option("--overwrite/--no-overwrite", default=None,

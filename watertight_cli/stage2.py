@@ -42,7 +42,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     tick = progress("build", len(result.patches)) if progress else None
     nets, quads = _untriangle(result, tol, model.diagonal)
     t_cut = time.perf_counter()
-    slender = _cut_slender(result, nets, quads, tol, model.diagonal)
+    splits, slender = _split_slender(nets, tol, model.diagonal)
     times["slender"] = time.perf_counter() - t_cut
     groups, fallbacks = [], []
     for faces, solid, _ in in_groups:
@@ -53,7 +53,7 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     # dropped, and a thin lens with three corners at one point made again (``topology.lens``),
     # when it lies within half the tolerance of its boundary curve, which its neighbours share
     shape, joined, made = join(groups, model.diagonal, src, tick, fold=0.5 * tol.approx_rel * model.diagonal,
-                               fallbacks=fallbacks)
+                               fallbacks=fallbacks, splits=splits)
     # remade triangles that left a side free went back to their triangles (``occ.assemble.join``);
     # their fit's deviation stays in their faces' I4 measure, an overestimate
     quads["remade"] -= joined["triangles_reverted"]
@@ -142,12 +142,10 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "triangles_kept": quads["kept"],
             "triangles_reverted": joined["triangles_reverted"],
             "triangle_deviation_max": quads["deviation_max"],
-            # patches more than ``Tolerances.slender_ratio`` times longer than wide, cut across
-            # into shorter pieces within a tenth of the exactness tolerance (``core.slender``)
-            "slender_patches_cut": slender["cut"],
-            "slender_pieces": slender["pieces"],
-            "slender_bound_max": slender["bound_max"],
-            "slender_degree_raised": slender["degree_raised"],
+            # patches more than ``Tolerances.slender_ratio`` times longer than wide whose long
+            # sides were split into shorter edges, and the vertices put into them
+            "slender_patches_split": slender["split"],
+            "slender_split_vertices": slender["vertices"],
             "slender_left_by_triangles": slender["left_by_triangles"],
             "edge_deviation_max": joined["edge_deviation_max"],
             "valid": valid,
@@ -220,50 +218,42 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
     return nets, info
 
 
-def _cut_slender(result, nets: list, quads: dict, tol: Tolerances, diagonal: float) -> dict:
-    """Cut every patch (of ``_untriangle``'s nets, in place) that is more than
-    ``tol.slender_ratio`` times longer than wide across into shorter pieces (``core.slender``),
-    each within a tenth of the exactness tolerance of it; that bound joins its face's deviation
-    (``quads["per_face"]``). Remade triangles stay whole (the build may put their triangle back),
-    and so do slivers narrower than ``tol.thin_rel`` (I5 counts those; cutting them would make
-    thousands of pieces)."""
-    from .core.slender import cut_slender
+def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.ndarray, dict]:
+    """Points that split the long sides of every patch (of ``_untriangle``'s nets) more than
+    ``tol.slender_ratio`` times longer than wide into pieces no longer than that ratio times the
+    strip's width there (``core.slender.split_points``); ``topology.connect`` makes them vertices
+    of the edges they lie on, so the strip's neighbours have them too. The patches stay whole
+    and exact. Remade triangles take no points, and no point goes on a triangle's side (remade or
+    kept with its collapsed side: the build may put a remade triangle back, and a needle or wedge
+    took no T-vertex along its sides when strips were cut into pieces: wing_fuselage, six free
+    edges); slivers narrower than ``tol.thin_rel`` take none either (I5 counts those)."""
+    from .core.slender import split_points
     from .core.triangle import collapsed_side
     from .topology import JOIN_REL
 
-    info = {"cut": 0, "pieces": 0, "bound_max": 0.0, "degree_raised": 0, "left_by_triangles": 0}
-    floor, budget = tol.thin_rel * diagonal, 0.1 * tol.exact_rel * diagonal
+    info = {"split": 0, "vertices": 0, "left_by_triangles": 0}
+    floor = tol.thin_rel * diagonal
     snap = _Vertices([(c, r) for face in nets for c, r, _ in face])
     eps = JOIN_REL * diagonal
     triangles = _Sides([(c, r) for face in nets for c, r, was in face
                         if was is not None or collapsed_side(c, eps) is not None])
-    for fr, face in zip(result.faces, nets, strict=True):
-        out, worst = [], 0.0
+    found = []
+    for face in nets:
         for ctrl, rational, was in face:
-            made = None if was is not None else cut_slender(
-                ctrl, rational, tol.slender_ratio, floor, budget, tol.max_degree, snap, eps)
-            # a cut whose end lands on the side of a triangle (remade as a quad or kept with its
-            # collapsed side) is not made: the build puts a remade triangle back when a side of
-            # its quad stays free, and a needle or wedge takes no T-vertex along its sides
-            # (wing_fuselage: a remade needle 1.5 long and a kept wedge 6 long, each beside a
-            # strip cut a dozen times, left a hole each: six free edges, one solid fewer)
-            if made is not None and triangles.near(_new_corners(ctrl, rational, made.pieces), floor):
-                info["left_by_triangles"] += 1
-                made = None
-            if made is None:
-                out.append((ctrl, rational, was))
+            if was is not None:
                 continue
-            info["cut"] += 1
-            info["pieces"] += len(made.pieces)
-            info["degree_raised"] += made.degree_raised
-            worst = max(worst, made.bound)
-            out.extend((c, rational, None) for c in made.pieces)
-            snap.add([(c, rational) for c in made.pieces])
-        face[:] = out
-        if worst > 0.0:
-            quads["per_face"][fr.face] = quads["per_face"].get(fr.face, 0.0) + worst
-        info["bound_max"] = max(info["bound_max"], worst)
-    return info
+            made = split_points(ctrl, rational, tol.slender_ratio, floor, snap, eps)
+            if made is None:
+                continue
+            pts = made.points
+            if triangles.near(pts, floor):
+                info["left_by_triangles"] += 1
+                continue
+            info["split"] += 1
+            info["vertices"] += len(pts)
+            found.append(pts)
+            snap.add_points(pts)
+    return (np.concatenate(found) if found else np.zeros((0, 3))), info
 
 
 def _new_corners(ctrl: np.ndarray, rational: bool, pieces: list[np.ndarray]) -> np.ndarray:
@@ -335,7 +325,10 @@ class _Vertices:
             self.trees.append((cKDTree(pts), pts))
 
     def add(self, nets: list[tuple[np.ndarray, bool]]) -> None:
-        self.loose = np.concatenate([self.loose, _net_corners(nets)])
+        self.add_points(_net_corners(nets))
+
+    def add_points(self, pts: np.ndarray) -> None:
+        self.loose = np.concatenate([self.loose, pts])
         if len(self.loose) >= 256:
             added = [pts for _, pts in self.trees[1:]] + [self.loose]
             self.trees = self.trees[:1]
@@ -532,8 +525,8 @@ def format_full_table(rep: dict) -> str:
         f"  faces in {rep['faces_in']}, patches out {rep['patches_out']}, degree max {rep['degree']['max']} "
         f"median {rep['degree']['median']:g}, T-junctions {rep['t_junctions']}, "
         f"thin patches {rep.get('thin_patches', 0)}"
-        + (f", slender patches cut {a['slender_patches_cut']} into {a['slender_pieces']}"
-           if a.get("slender_patches_cut") else ""),
+        + (f", slender patches split {a['slender_patches_split']} (vertices {a['slender_split_vertices']})"
+           if a.get("slender_patches_split") else ""),
         f"  gap: before {b['gap_max']:.3g} -> after "
         + (f"{a['gap_max']:.3g} ({a['gap_max'] / d:.2g} of the diagonal)" if "gap_max" in a
            else "(not read back)"),

@@ -59,14 +59,16 @@ class Tolerances:
         and 42 long (trj8's planar faces 40 and 49, where a neighbour's cuts land 4e-5 apart in u)
         it is a face that BRepMesh leaves partly untriangulated.
     slender_ratio:
-        Longest a finished patch may be for its width (a ratio, not relative to the diagonal):
-        longer ones are cut across into exact pieces (``core.slender``). Stage 1 leaves strips
+        Longest an edge along a finished patch's long side may be for the patch's width (a ratio,
+        not relative to the diagonal): the long sides of longer patches are split into shorter
+        edges, the patch kept whole (``core.slender``, ``topology.split``). Stage 1 leaves strips
         thousands of times longer than wide where slab lines or knot lines run close together. A
         checker that samples every edge at a fixed count (the independent one takes 272) then
         finds a third face's boundary nearer than the neighbour's samples once the neighbour's
         edge is about 540 times longer than the strip is wide. 250 keeps a margin of two; 100
-        (the default before 2026-12-06) cut 2-2.5 times as many pieces for no better checker
-        figures on the fixtures (unmatched boundary samples 16 at 100, 6 at 250, 10 at 400).
+        (the default before 2026-12-06, when strips were still cut across into pieces) made 2-2.5
+        times as many pieces for no better checker figures on the fixtures (unmatched boundary
+        samples 16 at 100, 6 at 250, 10 at 400).
     max_degree:
         Largest patch degree (``--max-degree``). 25 is OCCT's Bezier limit
         (``Geom_BezierSurface::MaxDegree``).

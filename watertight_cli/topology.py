@@ -97,6 +97,9 @@ class Topology:
     edges: list[TopoEdge]
     # per patch, per side name: the side's edges in increasing side parameter, as (edge, member index)
     wires: list[dict[str, list[tuple[int, int]]]] = field(default_factory=list)
+    # side pieces added by ``split`` (a vertex put inside an edge splits the side of every member):
+    # no T-vertices, as every face on the edge has the vertex
+    split_pieces: int = 0
 
     @property
     def free_edges(self) -> int:
@@ -104,7 +107,7 @@ class Topology:
 
     @property
     def t_vertices(self) -> int:
-        return sum(max(0, len(segs) - 1) for w in self.wires for segs in w.values())
+        return sum(max(0, len(segs) - 1) for w in self.wires for segs in w.values()) - self.split_pieces
 
     def components(self) -> list[list[int]]:
         """Patches connected through shared edges, each list in increasing patch order."""
@@ -342,9 +345,10 @@ def stray_needles(topo: Topology, nets: list[tuple[np.ndarray, bool]], eps: floa
     return out
 
 
-def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
+def connect(nets: list[tuple[np.ndarray, bool]], eps: float, extra: np.ndarray | None = None) -> Topology:
     """The topology of patches (``(ctrl, rational)`` each) whose shared boundaries coincide within
-    ``eps`` (model units). See the module docstring.
+    ``eps`` (model units). See the module docstring. ``extra`` (k, 3): points that become vertices
+    inside the edges they lie on within ``eps`` (``split``).
 
     A patch whose wire still passes one vertex twice (a cusp corner: the vertex lies on both sides
     that meet there, and the faces around it form one fan, so ``_unpinch`` cannot split it) is no
@@ -358,7 +362,96 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float) -> Topology:
         if not more:
             break
         drop |= more
+    if extra is not None and len(extra) and state:
+        split(topo, state["rows"], np.asarray(extra, dtype=float).reshape(-1, 3), eps)
     return topo
+
+
+def split(topo: Topology, rows, pts: np.ndarray, eps: float) -> int:
+    """Put the points ``pts`` that lie inside an edge (within ``eps`` of its curve, farther than
+    ``_MERGE`` x eps from its ends and from each other) into it as vertices, in place: the edge
+    becomes one edge per piece, and every member's side takes the same pieces, so each face on the
+    edge has every new vertex (no T-vertex). Edges with a spline parameter map (``Member.smap``)
+    stay whole. Returns how many vertices were put in.
+
+    Where stage 1 leaves a strip much longer than wide, its long sides are split so (``stage2``):
+    a check that samples each edge a fixed number of times then samples the strip's sides, and
+    its neighbours' sides, as densely as the strip is wide."""
+    if not len(pts):
+        return 0
+    tree = cKDTree(pts)
+    V, vtol = [topo.vertices], [topo.vertex_tolerance]
+    nv = len(topo.vertices)
+    added = 0
+    for e_id in range(len(topo.edges)):
+        e = topo.edges[e_id]
+        if e.degenerate or any(m.smap is not None for m in e.members):
+            continue
+        o = e.owner
+        orow = rows[o.patch][o.side]
+        xyz = orow[:, :3] / orow[:, 3:4]
+        lo, hi = xyz.min(axis=0) - eps, xyz.max(axis=0) + eps
+        found = tree.query_ball_point(0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo)))
+        if not found:
+            continue
+        cand = pts[found]
+        cand = cand[np.all((cand >= lo) & (cand <= hi), axis=1)]
+        if not len(cand):
+            continue
+        t, d = project(orow, cand, e.t0, e.t1, within=eps)
+        t = np.sort(t[d <= eps])
+        if not len(t):
+            continue
+        ends = _evaluate(orow, np.array([e.t0, e.t1]))
+        at = _evaluate(orow, t)
+        keep, last = [], ends[0]
+        for tk, pk in zip(t, at, strict=True):
+            if np.linalg.norm(pk - last) > _MERGE * eps and np.linalg.norm(pk - ends[1]) > _MERGE * eps:
+                keep.append(tk)
+                last = pk
+        if not keep:
+            continue
+        a = np.concatenate([[0.0], (np.array(keep) - e.t0) / (e.t1 - e.t0), [1.0]])
+        a[0], a[-1] = 0.0, 1.0
+        ids = [e.va, *range(nv, nv + len(keep)), e.vb]
+        new = _evaluate(orow, np.array(keep))
+        tol = np.zeros(len(keep))
+        for m in e.members:
+            r = rows[m.patch][m.side]
+            off = _evaluate(r, _moebius(a[1:-1], m.s0, m.s1, m.w)) - new
+            tol = np.maximum(tol, np.linalg.norm(off, axis=1))
+        V.append(new)
+        vtol.append(tol)
+        nv += len(keep)
+        added += len(keep)
+        pieces = []
+        for j in range(len(a) - 1):
+            t0, t1 = e.t0 + a[j] * (e.t1 - e.t0), e.t0 + a[j + 1] * (e.t1 - e.t0)
+            if j == len(a) - 2:
+                t1 = e.t1
+            members = []
+            for m in e.members:
+                s = _moebius(a[j:j + 2], m.s0, m.s1, m.w)
+                s[0] = m.s0 if j == 0 else s[0]
+                s[1] = m.s1 if j == len(a) - 2 else s[1]
+                # the Moebius map restricted to [a_j, a_j+1] is one again: end weights
+                # 1 + a (w - 1) at both ends, normalized to 1 at the start
+                w = (1.0 + a[j + 1] * (m.w - 1.0)) / (1.0 + a[j] * (m.w - 1.0))
+                members.append(Member(m.patch, m.side, float(s[0]), float(s[1]), float(w), m.deviation))
+            pieces.append(TopoEdge(ids[j], ids[j + 1], float(t0), float(t1), members))
+        piece_ids = [e_id, *range(len(topo.edges), len(topo.edges) + len(pieces) - 1)]
+        topo.edges[e_id] = pieces[0]
+        topo.edges.extend(pieces[1:])
+        for k, m in enumerate(e.members):
+            side = topo.wires[m.patch][m.side]
+            at_k = side.index((e_id, k))
+            order = piece_ids if m.s1 > m.s0 else piece_ids[::-1]
+            side[at_k:at_k + 1] = [(p, k) for p in order]
+            topo.split_pieces += len(pieces) - 1
+    if added:
+        topo.vertices = np.concatenate(V)
+        topo.vertex_tolerance = np.concatenate(vtol)
+    return added
 
 
 def _pinches(topo: Topology) -> set[tuple[int, str, int]]:

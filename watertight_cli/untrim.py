@@ -753,8 +753,8 @@ def _pole_caps(cells: list, owners: list, lines: np.ndarray, uknots: set[float],
     Every cell of a run is cut along one v-iso line c, ``_CAP`` of the way from the pole to the
     lowest (highest) thing above (below) it in the run: its other side or a cut; below (above) c the
     run is one cell, the cap (``_cap_runs``, ``_cap_cell``), whose side at c holds the corners of the
-    cells beyond as T-vertices. The cells beyond are no wedges but strips, cut across in stage 2
-    where they are slender (``core.slender``): the higher the cap, the shorter they are
+    cells beyond as T-vertices. The cells beyond are no wedges but strips, whose long sides stage 2
+    splits where they are slender (``core.slender``): the higher the cap, the shorter they are
     (sphere_cut_box: 84 patches at 0.5, 60 at 0.8, 48 at 0.9). Returns (below, c, cell indices in
     u order) per run of two cells or more; the cut c is added to each cell's cuts."""
     caps = []

@@ -1,18 +1,19 @@
-"""Slender patches cut across (``core.slender``): every piece is the patch over its part of the
-square within the certified bound, neighbouring pieces share their cut bitwise, the cuts run
-straight across where the patch's own iso-lines are slanted, and no piece stays slender."""
+"""Where slender patches' long sides are split (``core.slender``): the points lie on the long
+sides, no piece of a long side is much longer than ``ratio`` times the strip's width along it, the
+two sides are split opposite each other where the patch's own iso-lines are slanted, and known
+vertices nearby take the stations."""
 
 import numpy as np
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from watertight_cli.core.bezier import curve_eval, dehomogenize, homogenize, surface_eval, surface_eval_grid
-from watertight_cli.core.slender import cut_slender, slender_axis
+from watertight_cli.core.bezier import curve_eval, dehomogenize, homogenize
+from watertight_cli.core.slender import slender_axis, split_points
 
 from .helpers import seeds
 
 SETTINGS = settings(max_examples=25, deadline=None)
-RATIO, FLOOR, BUDGET = 100.0, 1e-9, 1e-9
+RATIO, FLOOR = 100.0, 1e-9
 
 
 def strip(rng, m: int, n: int, width: float, slant: float, length: float = 10.0) -> np.ndarray:
@@ -50,27 +51,44 @@ def narrowest(ctrl, rational, axis, n=1025):
     return float(np.linalg.norm(x - t[..., None] * d, axis=-1).min())
 
 
-def on_patch(ctrl, rational, cut, k, grid=9):
-    """Largest distance between piece k and the patch at the points its map sends it to."""
-    piece = cut.pieces[k]
-    net, p = (ctrl, piece) if cut.axis == 1 else (np.swapaxes(ctrl, 0, 1), np.swapaxes(piece, 0, 1))
-    a = np.concatenate([[0.0], cut.a, [1.0]])
-    b = np.concatenate([[0.0], cut.b, [1.0]])
-    sg, ng = np.meshgrid(np.linspace(0, 1, grid), np.linspace(0, 1, grid), indexing="ij")
-    sg, ng = sg.ravel(), ng.ravel()
-    lo = a[k] + sg * (b[k] - a[k])
-    hi = a[k + 1] + sg * (b[k + 1] - a[k + 1])
-    want = surface_eval(net, sg, lo + ng * (hi - lo))
-    got = surface_eval(p, sg, ng)
-    if rational:
-        want, got = dehomogenize(want), dehomogenize(got)
-    return float(np.linalg.norm(want - got, axis=1).max())
+def sides(ctrl, rational, axis, n=2049):
+    """The two long sides (running along ``axis``) sampled at n parameters, Cartesian."""
+    net = ctrl if axis == 1 else np.swapaxes(ctrl, 0, 1)
+    out = [curve_eval(net[i], np.linspace(0.0, 1.0, n)) for i in (0, -1)]
+    return [dehomogenize(x) if rational else x for x in out]
+
+
+def _to_polyline(pts, line):
+    d = np.diff(line, axis=0)
+    x = pts[:, None] - line[None, :-1]
+    t = np.clip(np.einsum("kij,ij->ki", x, d) / np.einsum("ij,ij->i", d, d), 0.0, 1.0)
+    return np.linalg.norm(x - t[..., None] * d, axis=-1).min(axis=1)
+
+
+def pieces_fit(ctrl, rational, split, slack, skip_ends=False, n=2049):
+    """Whether every piece of both long sides between the split points (and the ends) is at most
+    ``slack`` x RATIO times longer than the strip's narrowest width along it."""
+    lo, hi = sides(ctrl, rational, split.axis, n)
+    s = np.linspace(0.0, 1.0, n)
+    for own, other, params in ((lo, hi, split.a), (hi, lo, split.b)):
+        width = _to_polyline(own, other)
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(own, axis=0), axis=1))])
+        ends = np.concatenate([[0.0], params, [1.0]])
+        spans = list(zip(ends[:-1], ends[1:], strict=True))
+        if skip_ends:
+            spans = spans[1:-1]
+        for x, y in spans:
+            inside = (s >= x) & (s <= y)
+            length = np.interp(y, s, arc) - np.interp(x, s, arc)
+            if length > slack * RATIO * float(width[inside].min(initial=np.inf)):
+                return False
+    return True
 
 
 @SETTINGS
 @given(seeds, st.integers(1, 12), st.integers(1, 5), st.floats(0.002, 0.05), st.floats(0.0, 0.3),
        st.booleans(), st.booleans())
-def test_pieces_are_the_patch_and_share_cuts(seed, m, n, width, slant, rational, transpose):
+def test_split_points_lie_on_the_long_sides_and_pieces_fit(seed, m, n, width, slant, rational, transpose):
     rng = np.random.default_rng(seed)
     ctrl = strip(rng, m, n, width, slant)
     if rational:
@@ -81,62 +99,53 @@ def test_pieces_are_the_patch_and_share_cuts(seed, m, n, width, slant, rational,
     assume(narrowest(ctrl, rational, 1) >= 0.25 * width)
     if transpose:
         ctrl = np.ascontiguousarray(np.swapaxes(ctrl, 0, 1))
-    cut = cut_slender(ctrl, rational, RATIO, FLOOR, BUDGET, 25)
-    assert cut is not None  # 10 long and at most 0.05 wide: slender
-    assert cut.axis == (0 if transpose else 1)
-    assert cut.bound <= BUDGET
-    assert len(cut.pieces) >= 2
-    for k in range(len(cut.pieces)):
-        assert on_patch(ctrl, rational, cut, k) <= cut.bound + 1e-12
-    # the cuts are shared bitwise, and the outer rows are the patch's own
-    rows = [np.swapaxes(p, 0, 1) if cut.axis == 1 else p for p in cut.pieces]
-    whole = np.swapaxes(ctrl, 0, 1) if cut.axis == 1 else ctrl
-    for left, right in zip(rows[:-1], rows[1:], strict=True):
-        np.testing.assert_array_equal(left[-1], right[0])
-    if not cut.degree_raised:
-        np.testing.assert_array_equal(rows[0][0], whole[0])
-        np.testing.assert_array_equal(rows[-1][-1], whole[-1])
-    # no piece is slender any more (a little slack: widths are measured on samples), except the
-    # end pieces where the slanted end alone is longer than that
-    inner = cut.pieces if slant < 0.8 * RATIO * width else cut.pieces[1:-1]
-    for p in inner:
-        assert slender_axis(p, rational, 1.2 * RATIO, FLOOR) is None
+    split = split_points(ctrl, rational, RATIO, FLOOR)
+    assert split is not None  # 10 long and at most 0.05 wide: slender
+    assert split.axis == (0 if transpose else 1)
+    assert len(split.a) >= 1 and len(split.a) == len(split.b)
+    assert np.all(np.diff(split.a) > 0) and np.all(np.diff(split.b) > 0)
+    assert 0.0 < split.a[0] and split.a[-1] < 1.0 and 0.0 < split.b[0] and split.b[-1] < 1.0
+    net = ctrl if split.axis == 1 else np.swapaxes(ctrl, 0, 1)
+    want = [curve_eval(net[0], split.a), curve_eval(net[-1], split.b)]
+    want = np.concatenate([dehomogenize(w) if rational else w for w in want])
+    np.testing.assert_allclose(split.points, want, rtol=0, atol=1e-12)
+    # a little slack: widths are measured on samples; the end pieces may be as long as the
+    # slanted end alone
+    assert pieces_fit(ctrl, rational, split, 1.2, skip_ends=slant >= 0.8 * RATIO * width)
 
 
 @SETTINGS
 @given(seeds, st.integers(2, 10), st.integers(1, 4))
-def test_cuts_run_straight_across_a_slanted_strip(seed, m, n):
-    """Iso-lines 0.3 long across a strip 0.005 wide: the cuts go from side to side the short way
-    (a straight line of the square is not the shortest path where the spine's speed varies: a few
-    widths, against 60 for an iso-line)."""
+def test_sides_are_split_opposite_each_other_on_a_slanted_strip(seed, m, n):
+    """Iso-lines 0.3 long across a strip 0.005 wide: each station on side 1 is the nearest point
+    to its station on side 0 (a few widths away, against 60 for an iso-line)."""
     rng = np.random.default_rng(seed)
     width = 0.005
     ctrl = strip(rng, m, n, width, 0.3)
-    cut = cut_slender(ctrl, False, RATIO, FLOOR, BUDGET, 25)
-    assert cut is not None and len(cut.pieces) >= 5
-    for p in cut.pieces[1:]:
-        first = surface_eval_grid(p, np.linspace(0, 1, 33), [0.0])[:, 0]
-        assert np.linalg.norm(np.diff(first, axis=0), axis=1).sum() < 8 * width
+    split = split_points(ctrl, False, RATIO, FLOOR)
+    assert split is not None and len(split.a) >= 4
+    k = len(split.a)
+    assert np.linalg.norm(split.points[:k] - split.points[k:], axis=1).max() < 8 * width
 
 
 def test_not_slender_and_collapsed_are_left_alone():
     rng = np.random.default_rng(1)
-    assert cut_slender(strip(rng, 3, 3, 0.5, 0.0), False, RATIO, FLOOR, BUDGET, 25) is None
+    assert split_points(strip(rng, 3, 3, 0.5, 0.0), False, RATIO, FLOOR) is None
     wedge = strip(rng, 3, 3, 0.01, 0.0)
     wedge[:, 0] = wedge[0, 0]  # one short side collapsed to a point
-    assert cut_slender(wedge, False, RATIO, FLOOR, BUDGET, 25) is None
+    assert split_points(wedge, False, RATIO, FLOOR) is None
     # a long side against a short one near its end (a triangle made four-sided) is no strip
     tri = strip(rng, 3, 3, 0.01, 0.0)
     tri[-1] = tri[0, 0] + np.linspace(0.0, 1.0, 4)[:, None] * np.array([0.1, 0.0, 0.02])
     assert slender_axis(tri, False, RATIO, FLOOR) is None
 
 
-def test_cuts_go_through_known_vertices_on_the_sides():
-    """A vertex on a long side near where a cut would land takes the cut (two strips beside each
-    other are cut at the same points)."""
+def test_stations_go_to_known_vertices_on_the_sides():
+    """A vertex on a long side near where a station would land takes it (two strips beside each
+    other are split at the same points)."""
     rng = np.random.default_rng(7)
     ctrl = strip(rng, 4, 3, 0.01, 0.0)
-    plain = cut_slender(ctrl, False, RATIO, FLOOR, BUDGET, 25)
+    plain = split_points(ctrl, False, RATIO, FLOOR)
     t = plain.a[0] + 0.1 * (plain.a[1] - plain.a[0])
     vertex = curve_eval(ctrl[0], [t])[0]
 
@@ -146,19 +155,17 @@ def test_cuts_go_through_known_vertices_on_the_sides():
         out[near] = vertex
         return out
 
-    snapped = cut_slender(ctrl, False, RATIO, FLOOR, BUDGET, 25, snap, 1e-12)
+    snapped = split_points(ctrl, False, RATIO, FLOOR, snap, 1e-12)
     assert abs(snapped.a[0] - t) < 1e-12
-    corner = snapped.pieces[0][0, -1]
-    assert np.linalg.norm(corner - vertex) < 1e-12
+    assert np.linalg.norm(snapped.points[0] - vertex) < 1e-12
 
 
-def test_a_strip_that_narrows_between_samples_is_cut_finer_there():
+def test_a_strip_that_narrows_between_samples_is_split_finer_there():
     """Where a strip narrows to a hundredth of its width between the first look's samples (here
     where the random spine bends and the offset side comes close to it), the pieces there are
     still short enough: the sides are sampled finer where one step is too long for a piece."""
     ctrl = strip(np.random.default_rng(2), 1, 4, 0.0078125, 0.25)
     assert narrowest(ctrl, False, 1) < 0.01 * 0.0078125  # the strip does narrow that much
-    cut = cut_slender(ctrl, False, RATIO, FLOOR, BUDGET, 25)
-    assert cut is not None
-    for p in cut.pieces:
-        assert slender_axis(p, False, 1.2 * RATIO, FLOOR) is None
+    split = split_points(ctrl, False, RATIO, FLOOR)
+    assert split is not None
+    assert pieces_fit(ctrl, False, split, 1.2)

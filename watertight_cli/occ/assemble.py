@@ -13,6 +13,7 @@ a solid's void shells stay in it.
 
 from __future__ import annotations
 
+import numpy as np
 from OCP.BRep import BRep_Builder
 from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeSolid
 from OCP.BRepGProp import BRepGProp
@@ -65,7 +66,8 @@ _REVERT_PASSES = 3
 
 
 def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
-         fold: float = 0.0, fallbacks: list[dict] | None = None) -> tuple[TopoDS_Shape, dict, list]:
+         fold: float = 0.0, fallbacks: list[dict] | None = None,
+         splits: np.ndarray | None = None) -> tuple[TopoDS_Shape, dict, list]:
     """Faces of each group of patches ``(ctrl, rational, reversed)`` bounded by shared edges
     (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
     connected part; a solid where the group was a solid's shell and no edge is left free. Patches
@@ -81,7 +83,8 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     ``fallbacks``, per group, maps a patch's index in the group to the net it was made from
     (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
     patch has a side left free, it goes back to that net and the group is connected again
-    (``triangles_reverted`` counts them)."""
+    (``triangles_reverted`` counts them). ``splits`` (k, 3): points that become vertices inside
+    the edges they lie on (``topology.split``)."""
     from ..core.bezier import surface_volumes
     from ..topology import connect, flat, folded, lens, needle, stray_needles
     from .build import joined_faces
@@ -116,12 +119,12 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             keep.append(n)
         info["flat_patches"] += len(nets) - len(keep)
         nets = keep
-        topo = connect([(c, r) for c, r, _, _ in nets], eps)
+        topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
         needles = stray_needles(topo, [(c, r) for c, r, _, _ in nets], eps)
         if needles:
             info["flat_patches"] += len(needles)
             nets = [n for i, n in enumerate(nets) if i not in needles]
-            topo = connect([(c, r) for c, r, _, _ in nets], eps)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
         for _ in range(_REVERT_PASSES):
             # a remade triangle's new corner that its neighbour's side does not take (U_Joint_2:
             # 8 free edges where none were before the triangles were remade) goes back to being
@@ -135,7 +138,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             for i in undo:
                 c, r = nets[i][3]
                 nets[i] = (c, r, nets[i][2], None)
-            topo = connect([(c, r) for c, r, _, _ in nets], eps)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
         nets = [n[:3] for n in nets]
         info["degrees"] += [max(c.shape[0], c.shape[1]) - 1 for c, _, _ in nets]
         faces = joined_faces(nets, topo, tick)
