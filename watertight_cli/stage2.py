@@ -227,7 +227,7 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
     kept with its collapsed side: the build may put a remade triangle back, and a needle or wedge
     took no T-vertex along its sides when strips were cut into pieces: wing_fuselage, six free
     edges); slivers narrower than ``tol.thin_rel`` take none either (I5 counts those)."""
-    from .core.slender import split_points
+    from .core.slender import slender_axes, split_along
     from .core.triangle import collapsed_side
     from .topology import JOIN_REL
 
@@ -237,31 +237,29 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
     eps = JOIN_REL * diagonal
     triangles = _Sides([(c, r) for face in nets for c, r, was in face
                         if was is not None or collapsed_side(c, eps) is not None])
+    # the first look at every patch, in one pass per net shape (most patches are not slender)
+    plain = [(c, r) for face in nets for c, r, was in face if was is None]
+    shapes: dict[tuple, list[int]] = {}
+    for k, (c, r) in enumerate(plain):
+        shapes.setdefault((c.shape, r), []).append(k)
+    axes = np.full(len(plain), -1)
+    for (_, r), ks in shapes.items():
+        axes[ks] = slender_axes(np.stack([plain[k][0] for k in ks]), r, tol.slender_ratio, floor)
     found = []
-    for face in nets:
-        for ctrl, rational, was in face:
-            if was is not None:
-                continue
-            made = split_points(ctrl, rational, tol.slender_ratio, floor, snap, eps)
-            if made is None:
-                continue
-            pts = made.points
-            if triangles.near(pts, floor):
-                info["left_by_triangles"] += 1
-                continue
-            info["split"] += 1
-            info["vertices"] += len(pts)
-            found.append(pts)
-            snap.add_points(pts)
+    for k in np.flatnonzero(axes >= 0):
+        ctrl, rational = plain[k]
+        made = split_along(ctrl, rational, int(axes[k]), tol.slender_ratio, floor, snap, eps)
+        if made is None:
+            continue
+        pts = made.points
+        if triangles.near(pts, floor):
+            info["left_by_triangles"] += 1
+            continue
+        info["split"] += 1
+        info["vertices"] += len(pts)
+        found.append(pts)
+        snap.add_points(pts)
     return (np.concatenate(found) if found else np.zeros((0, 3))), info
-
-
-def _new_corners(ctrl: np.ndarray, rational: bool, pieces: list[np.ndarray]) -> np.ndarray:
-    """The pieces' corners that are not the patch's own corners (the cuts' ends), (k, 3)."""
-    own = _net_corners([(ctrl, rational)])
-    pts = _net_corners([(p, rational) for p in pieces])
-    far = np.linalg.norm(pts[:, None] - own[None], axis=2).min(axis=1) > 0.0
-    return pts[far]
 
 
 class _Sides:
@@ -309,9 +307,9 @@ def _net_corners(nets: list[tuple[np.ndarray, bool]]) -> np.ndarray:
 
 
 class _Vertices:
-    """The patches' corners, and those of pieces added since, for ``core.slender``'s snapping:
-    called with points (k, 3) and radii (k,), it returns the nearest corner within each radius,
-    or NaNs. Added corners go into a k-d tree of their own, remade once 256 wait outside it."""
+    """The patches' corners, and split points added since, for ``core.slender``'s snapping:
+    called with points (k, 3) and radii (k,), it returns the nearest one within each radius, or
+    NaNs. Added points go into a k-d tree of their own, remade once 256 wait outside it."""
 
     def __init__(self, nets: list[tuple[np.ndarray, bool]]):
         self.trees = []
@@ -323,9 +321,6 @@ class _Vertices:
 
         if len(pts):
             self.trees.append((cKDTree(pts), pts))
-
-    def add(self, nets: list[tuple[np.ndarray, bool]]) -> None:
-        self.add_points(_net_corners(nets))
 
     def add_points(self, pts: np.ndarray) -> None:
         self.loose = np.concatenate([self.loose, pts])

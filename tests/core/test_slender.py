@@ -8,7 +8,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from watertight_cli.core.bezier import curve_eval, dehomogenize, homogenize
-from watertight_cli.core.slender import slender_axis, split_points
+from watertight_cli.core.slender import slender_axes, slender_axis, split_points
 
 from .helpers import seeds
 
@@ -169,3 +169,27 @@ def test_a_strip_that_narrows_between_samples_is_split_finer_there():
     split = split_points(ctrl, False, RATIO, FLOOR)
     assert split is not None
     assert pieces_fit(ctrl, False, split, 1.2)
+
+
+@SETTINGS
+@given(seeds, st.integers(1, 6), st.integers(1, 6), st.booleans())
+def test_slender_axes_agree_with_slender_axis(seed, m, n, rational):
+    """The stacked first look gives each patch the axis (or none) that the one-patch test gives:
+    strips along either axis, wide patches, and wedges with a collapsed side, mixed."""
+    rng = np.random.default_rng(seed)
+    nets = []
+    for k in range(12):
+        width = [0.5, 0.01, 0.001, 0.05][k % 4]
+        c = strip(rng, m, n, width, rng.uniform(0.0, 0.3))
+        if k % 5 == 4:
+            c[:, 0] = c[0, 0]  # a wedge
+        if rational:
+            c = homogenize(c, weights(rng, c.shape[:2]))
+        nets.append(c if k % 2 else np.ascontiguousarray(np.swapaxes(c, 0, 1)))
+    by_shape = {}
+    for c in nets:
+        by_shape.setdefault(c.shape, []).append(c)
+    for group in by_shape.values():
+        got = slender_axes(np.stack(group), rational, RATIO, FLOOR)
+        want = [slender_axis(c, rational, RATIO, FLOOR) for c in group]
+        assert [None if g < 0 else int(g) for g in got] == want

@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .bernstein import basis
 from .bezier import curve_eval, dehomogenize
 
-__all__ = ["SlenderSplit", "slender_axis", "split_points"]
+__all__ = ["SlenderSplit", "slender_axes", "slender_axis", "split_along", "split_points"]
 
 _COARSE = 17  # samples per side for the first look; most patches stop there
 _FINE_MAX = 4097  # most samples per side for placing the stations
@@ -92,6 +93,43 @@ def slender_axis(ctrl: np.ndarray, rational: bool, ratio: float, floor: float) -
         if aspect > ratio and (best is None or aspect > best[1]):
             best = (axis, aspect)
     return None if best is None else best[0]
+
+
+def _to_polylines(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``_to_polyline``'s distances for a stack: a (P, k, 3) to the polylines b (P, m, 3), (P, k)."""
+    p, d = b[:, :-1], np.diff(b, axis=1)
+    dd = np.maximum(np.einsum("pij,pij->pi", d, d), 1e-300)
+    x = a[:, :, None, :] - p[:, None]
+    t = np.clip(np.einsum("pkij,pij->pki", x, d) / dd[:, None], 0.0, 1.0)
+    return np.linalg.norm(x - t[..., None] * d[:, None], axis=-1).min(axis=2)
+
+
+def slender_axes(ctrls: np.ndarray, rational: bool, ratio: float, floor: float) -> np.ndarray:
+    """``slender_axis`` for a stack of nets of one shape, ctrls (P, m+1, n+1, d), in one pass of
+    array operations (the first look at every patch of a model): (P,) ints, the axis, or -1 where
+    the patch is not slender."""
+    ctrls = np.asarray(ctrls, dtype=float)
+    P = len(ctrls)
+    out = np.full(P, -1)
+    best = np.zeros(P)
+    s = np.linspace(0.0, 1.0, _COARSE)
+    for axis in (0, 1):
+        net = ctrls if axis == 1 else np.swapaxes(ctrls, 1, 2)
+        rows = net[:, [0, -1]]  # (P, 2, n+1, d): the sides along axis 1
+        pts = np.einsum("kj,pijd->pikd", basis(rows.shape[2] - 1, s), rows)
+        pts = _cartesian(pts, rational)
+        lo, hi = pts[:, 0], pts[:, 1]
+        width = np.empty((P, _COARSE))
+        for i0 in range(0, P, 512):  # chunks keep the (chunk, k, k, 3) temporaries small
+            c = slice(i0, i0 + 512)
+            width[c] = np.minimum(_to_polylines(lo[c], hi[c]), _to_polylines(hi[c], lo[c]))
+        narrow = width.min(axis=1)
+        lengths = np.linalg.norm(np.diff(pts, axis=2), axis=3).sum(axis=2)  # (P, 2)
+        strip = (narrow > floor) & (lengths.min(axis=1) >= _SIDES * lengths.max(axis=1))
+        aspect = np.where(strip, lengths.max(axis=1) / np.where(strip, narrow, 1.0), 0.0)
+        take = strip & (aspect > ratio) & ((out < 0) | (aspect > best))
+        out[take], best[take] = axis, aspect[take]
+    return out
 
 
 def _foot(net_side: np.ndarray, rational: bool, pts: np.ndarray, s0: np.ndarray) -> np.ndarray:
@@ -213,8 +251,12 @@ def split_points(ctrl: np.ndarray, rational: bool, ratio: float, floor: float, s
     when given, returns for each point a known vertex within its radius, or NaNs: a station that
     would land near a vertex that lies on the side (within ``on``) goes to it instead."""
     axis = slender_axis(ctrl, rational, ratio, floor)
-    if axis is None:
-        return None
+    return None if axis is None else split_along(ctrl, rational, axis, ratio, floor, snap, on)
+
+
+def split_along(ctrl: np.ndarray, rational: bool, axis: int, ratio: float, floor: float, snap=None,
+                on: float = 0.0) -> SlenderSplit | None:
+    """``split_points`` for a patch already known to be slender along ``axis`` (``slender_axes``)."""
     net = np.asarray(ctrl, dtype=float)
     if axis == 0:
         net = np.swapaxes(net, 0, 1)
