@@ -193,3 +193,32 @@ def test_slender_axes_agree_with_slender_axis(seed, m, n, rational):
         got = slender_axes(np.stack(group), rational, RATIO, FLOOR)
         want = [slender_axis(c, rational, RATIO, FLOOR) for c in group]
         assert [None if g < 0 else int(g) for g in got] == want
+
+
+@SETTINGS
+@given(seeds, st.integers(2, 400), st.integers(3, 400), st.floats(1e-4, 1.0))
+def test_polyline_distance_by_nearby_segments_is_exact(seed, k, m, spread):
+    """The k-d tree search for long polylines gives every point the distance that measuring every
+    segment gives, and a foot on the polyline at that distance."""
+    from watertight_cli.core import slender
+
+    rng = np.random.default_rng(seed)
+    b = np.cumsum(rng.normal(size=(m, 3)) * rng.uniform(0.01, 1.0, size=(m, 1)), axis=0)
+    a = b[rng.integers(0, m, size=k)] + spread * rng.normal(size=(k, 3))
+    a[: k // 3] = rng.normal(scale=10.0, size=(k // 3, 3))  # some far from it
+    want, _ = slender._to_polyline(a, b) if k * m <= slender._BRUTE else _brute(a, b)
+    got, where = slender._to_polyline_near(a, b)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * (1 + float(want.max())))
+    j = np.minimum(where.astype(int), m - 2)
+    foot = b[j] + (where - j)[:, None] * (b[j + 1] - b[j])
+    np.testing.assert_allclose(np.linalg.norm(foot - a, axis=1), got, rtol=0, atol=1e-9)
+
+
+def _brute(a, b):
+    from watertight_cli.core import slender
+
+    saved, slender._BRUTE = slender._BRUTE, 1 << 62
+    try:
+        return slender._to_polyline(a, b)
+    finally:
+        slender._BRUTE = saved

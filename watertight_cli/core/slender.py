@@ -32,6 +32,7 @@ _FINE_MAX = 4097  # most samples per side for placing the stations
 _PIECES_MAX = 1024  # most pieces one long side is split into
 _STEP = 8  # fine samples per piece at least, so that the pieces' lengths follow the widths
 _SIDES = 0.5  # a strip's two long sides are within this factor of each other's length
+_BRUTE = 1 << 16  # point-segment pairs up to which ``_to_polyline`` measures them all
 
 
 class SlenderSplit:
@@ -51,7 +52,10 @@ def _cartesian(pts: np.ndarray, rational: bool) -> np.ndarray:
 
 def _to_polyline(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distance from each point of ``a`` (k, 3) to the polyline through ``b`` (m, 3), and the
-    polyline parameter of the foot (segment index + fraction): (k,), (k,)."""
+    polyline parameter of the foot (segment index + fraction): (k,), (k,). Long polylines go
+    through a k-d tree of their points (``_to_polyline_near``)."""
+    if len(a) * len(b) > _BRUTE and len(b) > 2:
+        return _to_polyline_near(a, b)
     p, d = b[:-1], np.diff(b, axis=0)
     dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
     dist, where = np.empty(len(a)), np.empty(len(a))
@@ -63,6 +67,36 @@ def _to_polyline(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         dist[i0:i0 + 256] = r[np.arange(len(j)), j]
         where[i0:i0 + 256] = j + t[np.arange(len(j)), j]
     return dist, where
+
+
+def _to_polyline_near(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``_to_polyline`` by the segments near each point alone: a point's foot lies within half a
+    segment of one of that segment's ends, so it lies on a segment with an end within
+    (distance to the nearest point of ``b``) + (longest segment) / 2 of the point; only those are
+    measured. The same distances as measuring every segment (the foot may differ where two
+    segments are equally near)."""
+    from scipy.spatial import cKDTree
+
+    p, d = b[:-1], np.diff(b, axis=0)
+    dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+    tree = cKDTree(b)
+    near, _ = tree.query(a)
+    reach = near + 0.5 * float(np.sqrt(dd.max())) * (1.0 + 1e-9) + 1e-300
+    found = tree.query_ball_point(a, reach)
+    counts = np.fromiter((len(f) for f in found), dtype=int, count=len(a))
+    verts = np.fromiter((v for f in found for v in f), dtype=int, count=int(counts.sum()))
+    pt = np.repeat(np.arange(len(a)), counts)
+    # each vertex found stands for the segments on both sides of it
+    seg = np.concatenate([verts - 1, verts])
+    pt = np.concatenate([pt, pt])
+    ok = (seg >= 0) & (seg < len(p))
+    seg, pt = seg[ok], pt[ok]
+    x = a[pt] - p[seg]
+    t = np.clip(np.einsum("ij,ij->i", x, d[seg]) / dd[seg], 0.0, 1.0)
+    r = np.linalg.norm(x - t[:, None] * d[seg], axis=1)
+    order = np.lexsort((seg, r, pt))  # per point: nearest first, the lower segment on a tie
+    first = order[np.concatenate([[True], np.diff(pt[order]) > 0])]
+    return r[first], seg[first] + t[first]
 
 
 def _long_sides(net: np.ndarray, rational: bool, n: int):
