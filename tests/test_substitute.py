@@ -668,8 +668,9 @@ def test_wing_fuselage_is_watertight_with_every_invariant(tmp_path):
     before); a sliver cell whose two rungs took one edge's curve is a fold and is dropped, and a
     lens in a cusp of face 9 is made again with its collapsed sides opposite (``topology.folded``,
     ``topology.lens``; since cells run through slab lines, 5f48509, that cusp has no lens left):
-    both solids, no free edge, every face untrimmed Bezier, every invariant. About thirteen minutes
-    and 5.5 GB at the default --max-aspect 250 (72257 patches; 151908 at 100, 25982 at inf)."""
+    both solids, no free edge, every face untrimmed Bezier, every invariant. About seven minutes
+    and 3.6 GB at the default --max-aspect 250 (22751 patches, the long sides of 6266 strips split
+    at 99012 points; 72257 patches when strips were cut into pieces)."""
     from watertight_cli.convert import convert_file
 
     rep = convert_file(str(corpus_path("gmsh__wing_fuselage.step")), str(tmp_path / "o.step"), Tolerances())
