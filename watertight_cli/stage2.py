@@ -221,8 +221,9 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
 def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.ndarray, dict]:
     """Points that split the long sides of every patch (of ``_untriangle``'s nets) more than
     ``tol.slender_ratio`` times longer than wide into pieces no longer than that ratio times the
-    strip's width there (``core.slender.split_points``); ``topology.connect`` makes them vertices
-    of the edges they lie on, so the strip's neighbours have them too. The patches stay whole
+    strip's width there (``core.slender``: ``slender_axes``, then ``split_along``);
+    ``topology.connect`` makes them vertices of the edges they lie on, so the strip's neighbours
+    have them too. The patches stay whole
     and exact. Remade triangles take no points, and no point goes on a triangle's side (remade or
     kept with its collapsed side: the build may put a remade triangle back, and a needle or wedge
     took no T-vertex along its sides when strips were cut into pieces: wing_fuselage, six free

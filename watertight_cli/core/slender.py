@@ -56,17 +56,23 @@ def _to_polyline(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     through a k-d tree of their points (``_to_polyline_near``)."""
     if len(a) * len(b) > _BRUTE and len(b) > 2:
         return _to_polyline_near(a, b)
-    p, d = b[:-1], np.diff(b, axis=0)
-    dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
     dist, where = np.empty(len(a)), np.empty(len(a))
     for i0 in range(0, len(a), 256):  # chunks keep the (chunk, m, 3) temporaries small
-        x = a[i0:i0 + 256, None, :] - p[None]
-        t = np.clip(np.einsum("kij,ij->ki", x, d) / dd, 0.0, 1.0)
-        r = np.linalg.norm(x - t[..., None] * d[None], axis=-1)
-        j = r.argmin(axis=1)
-        dist[i0:i0 + 256] = r[np.arange(len(j)), j]
-        where[i0:i0 + 256] = j + t[np.arange(len(j)), j]
+        c = slice(i0, i0 + 256)
+        dist[c], where[c] = (x[0] for x in _to_polylines(a[None, c], b[None]))
     return dist, where
+
+
+def _to_polylines(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``_to_polyline`` for a stack, every point against every segment: a (P, k, 3) to the
+    polylines b (P, m, 3); distances and feet (segment index + fraction), (P, k) each."""
+    p, d = b[:, :-1], np.diff(b, axis=1)
+    dd = np.maximum(np.einsum("pij,pij->pi", d, d), 1e-300)
+    x = a[:, :, None, :] - p[:, None]
+    t = np.clip(np.einsum("pkij,pij->pki", x, d) / dd[:, None], 0.0, 1.0)
+    r = np.linalg.norm(x - t[..., None] * d[:, None], axis=-1)
+    j = r.argmin(axis=2)
+    return np.take_along_axis(r, j[..., None], 2)[..., 0], j + np.take_along_axis(t, j[..., None], 2)[..., 0]
 
 
 def _to_polyline_near(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -129,15 +135,6 @@ def slender_axis(ctrl: np.ndarray, rational: bool, ratio: float, floor: float) -
     return None if best is None else best[0]
 
 
-def _to_polylines(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``_to_polyline``'s distances for a stack: a (P, k, 3) to the polylines b (P, m, 3), (P, k)."""
-    p, d = b[:, :-1], np.diff(b, axis=1)
-    dd = np.maximum(np.einsum("pij,pij->pi", d, d), 1e-300)
-    x = a[:, :, None, :] - p[:, None]
-    t = np.clip(np.einsum("pkij,pij->pki", x, d) / dd[:, None], 0.0, 1.0)
-    return np.linalg.norm(x - t[..., None] * d[:, None], axis=-1).min(axis=2)
-
-
 def slender_axes(ctrls: np.ndarray, rational: bool, ratio: float, floor: float) -> np.ndarray:
     """``slender_axis`` for a stack of nets of one shape, ctrls (P, m+1, n+1, d), in one pass of
     array operations (the first look at every patch of a model): (P,) ints, the axis, or -1 where
@@ -156,7 +153,7 @@ def slender_axes(ctrls: np.ndarray, rational: bool, ratio: float, floor: float) 
         width = np.empty((P, _COARSE))
         for i0 in range(0, P, 512):  # chunks keep the (chunk, k, k, 3) temporaries small
             c = slice(i0, i0 + 512)
-            width[c] = np.minimum(_to_polylines(lo[c], hi[c]), _to_polylines(hi[c], lo[c]))
+            width[c] = np.minimum(_to_polylines(lo[c], hi[c])[0], _to_polylines(hi[c], lo[c])[0])
         narrow = width.min(axis=1)
         lengths = np.linalg.norm(np.diff(pts, axis=2), axis=3).sum(axis=2)  # (P, 2)
         strip = (narrow > floor) & (lengths.min(axis=1) >= _SIDES * lengths.max(axis=1))
