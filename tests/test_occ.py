@@ -125,6 +125,26 @@ def test_write_is_atomic_and_deterministic(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["a.step", "b.step", "c.igs", "one", "two"]
 
 
+def test_iges_output_carries_no_time_stamp_or_login_name(tmp_path):
+    """OCCT stamps an IGES global section with the time of writing and the user's login name; two
+    writes a second apart differed (I6). Both dates are a fixed stamp and the author is empty."""
+    import getpass
+    import time
+
+    from watertight_cli.occ.io import IGES_STAMP, read_shape, write_shape
+
+    shape = read_shape(fixture_path("loft_minus_cylinder.igs")).shape
+    write_shape(shape, tmp_path / "a.igs")
+    time.sleep(1.1)
+    write_shape(shape, tmp_path / "b.igs")
+    data = (tmp_path / "a.igs").read_bytes()
+    assert data == (tmp_path / "b.igs").read_bytes()
+    gsec = b"".join(line[:72] for line in data.splitlines() if line[72:73] == b"G")
+    assert gsec.count(b"15H" + IGES_STAMP.encode()) == 2
+    assert time.strftime("%Y%m%d").encode() not in gsec
+    assert b"H" + getpass.getuser().encode() + b"," not in gsec
+
+
 def test_iges_keeps_reals_to_fourteen_digits(tmp_path):
     """OCCT's IGES writer rounds to 10 digits by default: shared rows then read back 1.6e-8 apart."""
     from OCP.BRep import BRep_Tool

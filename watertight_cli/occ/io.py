@@ -23,7 +23,7 @@ from OCP.Interface import Interface_Static
 from OCP.Message import Message, Message_Gravity
 from OCP.Resource import Resource_DataMapOfAsciiStringAsciiString
 from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
-from OCP.TCollection import TCollection_AsciiString
+from OCP.TCollection import TCollection_AsciiString, TCollection_HAsciiString
 from OCP.TColStd import TColStd_SequenceOfAsciiString
 from OCP.TopoDS import TopoDS_Shape
 
@@ -252,6 +252,10 @@ def _declare_uncertainty(shape: TopoDS_Shape) -> None:
     Interface_Static.SetRVal_s("write.precision.val", float(max(largest, 1e-7)))
 
 
+#: the fixed creation and change date of every IGES file written (as the STEP header's time stamp)
+IGES_STAMP = "20000101.000000"
+
+
 def _write_iges(shape: TopoDS_Shape, tmp: str) -> bool:
     """IGES in B-rep mode (186 solids) with reals written to 14 significant digits.
 
@@ -267,6 +271,14 @@ def _write_iges(shape: TopoDS_Shape, tmp: str) -> bool:
     writer.ComputeModel()
     if writer.Model().NbEntities() == 0:
         return False
+    # the same bytes for the same input (I6): OCCT stamps the global section with the time of
+    # writing (creation and last change) and the user's login name as the author
+    stamp = TCollection_HAsciiString(IGES_STAMP)
+    gs = writer.Model().GlobalSection()
+    gs.SetDate(stamp)
+    gs.SetLastChangeDate(stamp)
+    gs.SetAuthorName(TCollection_HAsciiString(""))
+    writer.Model().SetGlobalSection(gs)
     iw = IGESData_IGESWriter(writer.Model())
     iw.FloatWriter().SetFormat("%.13E", True)
     iw.FloatWriter().SetZeroSuppress(False)
