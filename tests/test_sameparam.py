@@ -114,6 +114,27 @@ def test_track_params_put_samples_in_every_knot_span(knots, uniform, per_span):
         assert inside >= per_span
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 25), st.integers(1, 25), st.booleans(), st.floats(-3.0, 3.0), st.floats(0.01, 5.0),
+       st.integers(0, 2**32 - 1))
+def test_bezier_sampling_of_the_read_back_matches_the_spline(p, q, rational, k0, width, seed):
+    """The read-back's gap tracks evaluate one-span curves and Bezier patches by their Bernstein
+    bases (``gaps._curve_at``, ``gaps._surface_at``); they agree with scipy's splines, past the
+    ends too (pcurves run slightly outside their surface's domain)."""
+    from watertight_cli.gaps import _curve_at, _surface_at
+
+    rng = np.random.default_rng(seed)
+    w = np.sort(np.r_[k0 - 0.01 * width, k0 + width * rng.random(30), k0 + 1.01 * width])
+    weights = rng.uniform(0.5, 2.0, p + 1) if rational else None
+    c = BSplineCurve(p, np.r_[[k0] * (p + 1), [k0 + width] * (p + 1)], rng.normal(size=(p + 1, 3)), weights)
+    assert np.allclose(_curve_at(c, w), c.evaluate(w), rtol=0, atol=1e-12)
+    kv = np.r_[[k0] * (q + 1), [k0 + width] * (q + 1)]
+    sw = rng.uniform(0.5, 2.0, (p + 1, q + 1)) if rational else None
+    s = BSplineSurface(p, q, c.knots, kv, rng.normal(size=(p + 1, q + 1, 3)), sw)
+    uv = np.c_[w, w[::-1]]
+    assert np.allclose(_surface_at(s, uv), s.evaluate(uv), rtol=0, atol=1e-12)
+
+
 def test_slow_pcurve_fixture_is_measured_and_retimed(tmp_path):
     """The fixture's top face runs 0.13 behind its edge over the first 3 % (equal steps see nothing):
     the report's knot-span samples find it, and the conversion re-times the pcurve, so stage 2

@@ -17,12 +17,14 @@ conversion to arrays changed). The measurement itself is the same numpy code for
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from dataclasses import dataclass
 
 import numpy as np
 
-from .model import Model
+from .core.bernstein import basis
+from .model import BSplineCurve, BSplineSurface, Model
 from .tolerances import Tolerances
 
 #: Samples inside every knot span of an edge's 3D curve and pcurves, on top of the equal steps.
@@ -31,14 +33,27 @@ PER_SPAN = 3
 
 def track_params(a: float, b: float, uniform: int, knot_vectors, per_span: int = PER_SPAN) -> np.ndarray:
     """Sorted parameters in [a, b]: ``uniform`` equal steps (ends included) plus ``per_span`` points
-    inside every knot span (of any of ``knot_vectors``) that meets [a, b]."""
+    inside every knot span (of any of ``knot_vectors``) that meets [a, b].
+
+    The result is read-only and shared between calls with the same arguments: most edges of a
+    converted model ask for the same samples (occ22470's output: 16 distinct requests among 16783
+    edges), and building them took 0.12 ms an edge."""
+    key = tuple(np.ascontiguousarray(k, dtype=float).tobytes() for k in knot_vectors)
+    return _track_params(float(a), float(b), int(uniform), key, int(per_span))
+
+
+@functools.lru_cache(maxsize=4096)
+def _track_params(a: float, b: float, uniform: int, knot_bytes: tuple[bytes, ...],
+                  per_span: int) -> np.ndarray:
     out = [np.linspace(a, b, uniform)]
     inner = (np.arange(per_span) + 0.5) / per_span
-    for k in knot_vectors:
-        u = np.unique(np.clip(np.asarray(k, dtype=float), a, b))
+    for kb in knot_bytes:
+        u = np.unique(np.clip(np.frombuffer(kb, dtype=float), a, b))
         if len(u) > 1:
             out.append((u[:-1, None] + np.diff(u)[:, None] * inner[None, :]).ravel())
-    return np.unique(np.concatenate(out))
+    w = np.unique(np.concatenate(out))
+    w.flags.writeable = False
+    return w
 
 
 @dataclass(frozen=True)
@@ -79,15 +94,49 @@ def model_tracks(model: Model, tol: Tolerances, params: dict[int, np.ndarray] | 
     params = {ei: given[ei] if ei in given else
               track_params(model.edges[ei].first, model.edges[ei].last, tol.gap_samples, kv)
               for ei, kv in knots.items()}
-    out: Tracks = {ei: (model.edges[ei].curve.evaluate(w) if model.edges[ei].curve is not None else None, [])
+    curves = {ei: model.edges[ei].curve for ei in params}
+    out: Tracks = {ei: (None if curves[ei] is None else _curve_at(curves[ei], w), [])
                    for ei, w in params.items()}
     for fi, reqs in requests.items():
-        uv = np.concatenate([pc.evaluate(params[ei]) for ei, pc in reqs])
-        pts = model.faces[fi].surface.evaluate(uv)
+        uv = np.concatenate([_curve_at(pc, params[ei]) for ei, pc in reqs])
+        pts = _surface_at(model.faces[fi].surface, uv)
         cuts = np.cumsum([len(params[ei]) for ei, _ in reqs])[:-1]
         for (ei, _), p in zip(reqs, np.split(pts, cuts), strict=True):
             out[ei][1].append((fi, p))
     return out
+
+
+@functools.lru_cache(maxsize=4096)
+def _span_basis(degree: int, k0: float, k1: float, w_bytes: bytes) -> np.ndarray:
+    """Bernstein basis (k, degree+1) of the one span [k0, k1] at the parameters ``w_bytes``."""
+    w = np.frombuffer(w_bytes, dtype=float)
+    return basis(degree, (w - k0) / (k1 - k0))
+
+
+def _curve_at(curve: BSplineCurve, w: np.ndarray) -> np.ndarray:
+    """``curve.evaluate(w)``; a one-span curve (every curve of a converted model) by its Bernstein
+    basis at ``w``, shared between the many edges sampled at the same parameters (a scipy spline
+    per call cost 20-30 us an edge)."""
+    n = curve.degree + 1
+    if len(curve.poles) != n or len(curve.knots) != 2 * n:
+        return curve.evaluate(w)
+    k0, k1 = float(curve.knots[0]), float(curve.knots[-1])
+    b = _span_basis(curve.degree, k0, k1, np.ascontiguousarray(w, dtype=float).tobytes())
+    h = b @ curve.homogeneous()
+    return h[:, :-1] / h[:, -1:] if curve.rational else h
+
+
+def _surface_at(surface: BSplineSurface, uv: np.ndarray) -> np.ndarray:
+    """``surface.evaluate(uv)``; a Bezier patch by its Bernstein bases in u and v."""
+    if not surface.is_bezier:
+        return surface.evaluate(uv)
+    u0, u1, v0, v1 = surface.domain
+    bu = basis(surface.udegree, (uv[:, 0] - u0) / (u1 - u0))
+    bv = basis(surface.vdegree, (uv[:, 1] - v0) / (v1 - v0))
+    H = surface.homogeneous()
+    h = (bu @ H.reshape(H.shape[0], -1)).reshape(len(uv), H.shape[1], H.shape[2])  # BLAS along u
+    h = np.einsum("kj,kjd->kd", bv, h)
+    return h[:, :-1] / h[:, -1:] if surface.rational else h
 
 
 def track_gap(c: np.ndarray | None, tr: list[tuple[int, np.ndarray]]) -> tuple[float, float, np.ndarray]:

@@ -150,8 +150,9 @@ def product(a, b, axis: int = 0) -> np.ndarray:
     -------
     (p+q+1, ...) float, with the coefficient axis at ``axis``.
     """
-    a = np.moveaxis(np.asarray(a, dtype=float), axis, 0)
-    b = np.moveaxis(np.asarray(b, dtype=float), axis, 0)
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if axis != 0:  # (np.moveaxis costs more than the product of two short curves)
+        a, b = np.moveaxis(a, axis, 0), np.moveaxis(b, axis, 0)
     p, q = a.shape[0] - 1, b.shape[0] - 1
     # b of shape (q+1,) against a of shape (p+1, d): broadcast channels as trailing axes.
     if b.ndim < a.ndim:
@@ -166,7 +167,7 @@ def product(a, b, axis: int = 0) -> np.ndarray:
     for i in range(p + 1):
         out[i : i + q + 1] += ah[i] * bh
     out = _scale(out, 0, inverse=True)
-    return np.moveaxis(out, 0, axis)
+    return out if axis == 0 else np.moveaxis(out, 0, axis)
 
 
 def product2(a, b) -> np.ndarray:
