@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from watertight_cli.core.bernstein import (
     basis,
+    basis_and_lower,
     binom,
     binom_table,
     from_power,
@@ -43,6 +44,17 @@ def test_basis_partition_of_unity_and_closed_form(seed, n):
     k = np.arange(n + 1)
     closed = binom_table(n)[n] * t[:, None] ** k * (1 - t[:, None]) ** (n - k)
     np.testing.assert_allclose(b, closed, rtol=1e-12, atol=1e-15)
+
+
+@SETTINGS
+@given(seeds, st.integers(1, 25))
+def test_basis_and_lower_are_the_two_bases_to_the_bit(seed, n):
+    """The derivative helper shares the powers of t and 1 - t and gives the same bits as two calls,
+    past the ends too."""
+    rng = np.random.default_rng(seed)
+    t = np.concatenate([[0.0, 1.0, -0.01, 1.01], rng.random(40)])
+    b, lower = basis_and_lower(n, t)
+    assert np.array_equal(b, basis(n, t)) and np.array_equal(lower, basis(n - 1, t))
 
 
 @SETTINGS

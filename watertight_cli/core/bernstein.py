@@ -21,6 +21,7 @@ __all__ = [
     "binom_table",
     "binom",
     "basis",
+    "basis_and_lower",
     "product",
     "product2",
     "to_power",
@@ -93,6 +94,20 @@ def basis(n: int, t) -> np.ndarray:
         raise ValueError(f"basis: t must be 1-D, got shape {t.shape}")
     e = _exponents(n)
     return _binom_row(n) * np.power(t[:, None], e) * np.power((1.0 - t)[:, None], e[::-1])
+
+
+def basis_and_lower(n: int, t) -> tuple[np.ndarray, np.ndarray]:
+    """``(basis(n, t), basis(n - 1, t))`` with the powers of t and 1 - t computed once (the same
+    values to the bit: for derivatives, where the powers are most of the cost on large grids).
+    n >= 1."""
+    if n < 1:
+        raise ValueError(f"basis_and_lower: degree must be >= 1, got {n}")
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    if t.ndim != 1:
+        raise ValueError(f"basis_and_lower: t must be 1-D, got shape {t.shape}")
+    e = _exponents(n)
+    pt, ps = np.power(t[:, None], e), np.power((1.0 - t)[:, None], e)
+    return _binom_row(n) * pt * ps[:, ::-1], _binom_row(n - 1) * pt[:, :-1] * ps[:, -2::-1]
 
 
 def scalar_fn(c):

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bernstein import basis
+from .bernstein import basis, basis_and_lower
 from .bezier import curve_split, elevate_curve, rational_surface_eval
 
 #: samples per degree in each direction of the fit and of the check (the check's grid is offset,
@@ -315,13 +315,18 @@ def _two_sided(P: np.ndarray, Q: np.ndarray, k: int, split: float = 0.5) -> floa
     return max(float(_foot(P, on_q, ms, mt)[2].max()), float(_foot(Q, on_p, sc, tc)[2].max()))
 
 
+def _bases(k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Bernstein values of degree k and k - 1 at x (None for the lower when k = 0)."""
+    return basis_and_lower(k, x) if k else (basis(0, x), None)
+
+
 def _point_derivatives(H: np.ndarray, s: np.ndarray, t: np.ndarray):
     """Cartesian S, S_s, S_t of the homogeneous net H at the pairs (s[k], t[k])."""
     m, n = H.shape[0] - 1, H.shape[1] - 1
-    bs, bt = basis(m, s), basis(n, t)
+    (bs, bs1), (bt, bt1) = _bases(m, s), _bases(n, t)
     h = _pairs(bs, H, bt)
-    hs = _pairs(basis(m - 1, s), m * np.diff(H, axis=0), bt) if m else np.zeros_like(h)
-    ht = _pairs(bs, n * np.diff(H, axis=1), basis(n - 1, t)) if n else np.zeros_like(h)
+    hs = _pairs(bs1, m * np.diff(H, axis=0), bt) if m else np.zeros_like(h)
+    ht = _pairs(bs, n * np.diff(H, axis=1), bt1) if n else np.zeros_like(h)
     w = h[:, 3:4]
     x = h[:, :3] / w
     return x, (hs[:, :3] - x * hs[:, 3:4]) / w, (ht[:, :3] - x * ht[:, 3:4]) / w
