@@ -699,6 +699,44 @@ def test_thin_patch_counts_slivers_below_the_tolerance_and_not_pole_triangles():
     assert not thin_patch(grid(0.5 * S, 42.0 * T + 2.0 * S * T), width)
 
 
+def _thin_reference(along_s: np.ndarray, along_t: np.ndarray, width: float) -> bool:
+    """``verify.thin_sides`` written out for one patch: every sample of a side against every
+    segment of the opposite side's polyline, the 0.75 quantile of the nearest distances."""
+    def gap(a, b):
+        near = []
+        for x in a:
+            best = np.inf
+            for p, q in zip(b[:-1], b[1:], strict=True):
+                d = q - p
+                t = min(max(float(np.dot(x - p, d) / max(np.dot(d, d), 1e-300)), 0.0), 1.0)
+                best = min(best, float(np.linalg.norm(x - (p + t * d))))
+            near.append(best)
+        return float(np.quantile(near, 0.75))
+
+    across_t = max(gap(along_s[:, 0], along_s[:, 1]), gap(along_s[:, 1], along_s[:, 0]))
+    across_s = max(gap(along_t[0], along_t[1]), gap(along_t[1], along_t[0]))
+    length = max(np.linalg.norm(np.diff(along_s, axis=0), axis=-1).sum(axis=0).max(),
+                 np.linalg.norm(np.diff(along_t, axis=1), axis=-1).sum(axis=1).max())
+    return min(across_t, across_s) < width and length > 10.0 * width
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(1, 40), st.integers(0, 2**32 - 1), st.floats(1e-3, 0.5))
+def test_thin_check_of_many_patches_matches_the_one_patch_definition(count, seed, width):
+    """The verify step measures all patches of a face at once and skips those whose opposite
+    sides' boxes stand ``width`` apart; the flags are those of the plain definition per patch."""
+    from watertight_cli.verify import thin_sides_many
+
+    rng = np.random.default_rng(seed)
+    size = rng.uniform(1e-4, 1.0, (count, 1, 1, 1))
+    along_s, along_t = rng.normal(size=(count, 9, 2, 3)) * size, rng.normal(size=(count, 2, 9, 3)) * size
+    squash = rng.random(count) < 0.5  # sides close to each other, some within ``width``
+    along_s[squash, :, 1] = along_s[squash, :, 0] + 1e-3 * rng.normal(size=(int(squash.sum()), 9, 3))
+    along_t[squash, 1] = along_t[squash, 0] + 1e-3 * rng.normal(size=(int(squash.sum()), 9, 3))
+    got = thin_sides_many(along_s, along_t, width)
+    assert got.tolist() == [_thin_reference(a, b, width) for a, b in zip(along_s, along_t, strict=True)]
+
+
 def _cusp_model(c: float):
     """Two quadratic edges leaving vertex 0 at the origin along x: a = (w, c w^2, 0) and
     b = (w, -c w^2, 0), w in [0, 1], 2 c w^2 apart (a cusp for c small)."""

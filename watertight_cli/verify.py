@@ -41,6 +41,7 @@ _GAUSS = 24  # Gauss-Legendre nodes per direction for areas
 _AREA_REL = 1e-5
 _GAUSS_X = 0.5 * (np.polynomial.legendre.leggauss(_GAUSS)[0] + 1)
 _GAUSS_W = 0.5 * np.polynomial.legendre.leggauss(_GAUSS)[1]
+_CHUNK = 256  # patches measured together (keeps the temporaries of the thin check near 25 MB)
 _GRIDS = {
     "gauss": _GAUSS_X,
     "interior": np.linspace(0.05, 0.95, _GRID),  # fold check: away from collapsed rungs and poles
@@ -120,11 +121,75 @@ def patch_area(patch: Patch) -> float:
     return float(_GAUSS_W @ np.linalg.norm(np.cross(ps, pt), axis=-1) @ _GAUSS_W)
 
 
-def _perimeter(p: Patch) -> float:
-    """Length bound of a patch's boundary: its four boundary control polygons."""
-    C = p.ctrl[..., :3] / p.ctrl[..., 3:4] if p.rational else p.ctrl
-    return float(sum(np.linalg.norm(np.diff(row, axis=0), axis=-1).sum()
-                     for row in (C[:, 0], C[:, -1], C[0, :], C[-1, :])))
+@dataclass
+class _Measures:
+    """Per patch of a face (first axis): the samples and sizes the verify step compares."""
+
+    grid: np.ndarray  # (P, _GRID, _GRID, 3) points on the grid g x g
+    along_s: np.ndarray  # (P, _SIDE, 2, 3) the sides t = 0 and t = 1 sampled along s
+    along_t: np.ndarray  # (P, 2, _SIDE, 3) the sides s = 0 and s = 1 sampled along t
+    normals: np.ndarray  # (P, _GRID * _GRID, 3) unnormalized normals on the interior grid
+    extent: np.ndarray  # (P,) largest coordinate range of the control net
+    area: np.ndarray  # (P,) ``patch_area``
+    perimeter: np.ndarray  # (P,) length bound of the boundary: its four boundary control polygons
+
+
+_FIXED = {"grid": np.linspace(0.0, 1.0, _GRID), "side": _SIDE_S, "ends": _ENDS}
+
+
+@functools.lru_cache(maxsize=256)
+def _fixed_basis(k: int, name: str) -> np.ndarray:
+    return basis(k, _FIXED[name])
+
+
+def _stacked_tensor(Bs: np.ndarray, C: np.ndarray, Bt: np.ndarray) -> np.ndarray:
+    """``_tensor`` of P nets (P, m+1, n+1, d) at once -> (P, a, b, d)."""
+    P, m1, n1, d = C.shape
+    X = (Bs @ C.reshape(P, m1, n1 * d)).reshape(P, -1, n1, d)
+    return Bt[None, None] @ X
+
+
+def _measures(patches: list[Patch]) -> _Measures:
+    """The per-patch samples of ``_check_face`` for all patches of a face, computed for the patches
+    of one bidegree and kind together (a few small array operations per patch and sample kind
+    were most of the verify step's time)."""
+    P = len(patches)
+    out = _Measures(np.zeros((P, _GRID, _GRID, 3)), np.zeros((P, _SIDE, 2, 3)), np.zeros((P, 2, _SIDE, 3)),
+                    np.zeros((P, _GRID * _GRID, 3)), np.zeros(P), np.zeros(P), np.zeros(P))
+    groups: dict[tuple, list[int]] = {}
+    for k, p in enumerate(patches):
+        groups.setdefault((p.ctrl.shape, p.rational), []).append(k)
+    for (shape, rational), members in groups.items():
+        for lo in range(0, len(members), _CHUNK):
+            idx = members[lo:lo + _CHUNK]
+            C = np.stack([patches[k].ctrl for k in idx])
+            m, n = shape[0] - 1, shape[1] - 1
+            cart = (lambda h: h[..., :3] / h[..., 3:4]) if rational else (lambda h: h)  # noqa: E731
+            out.grid[idx] = cart(_stacked_tensor(_fixed_basis(m, "grid"), C, _fixed_basis(n, "grid")))
+            out.along_s[idx] = cart(_stacked_tensor(_fixed_basis(m, "side"), C, _fixed_basis(n, "ends")))
+            out.along_t[idx] = cart(_stacked_tensor(_fixed_basis(m, "ends"), C, _fixed_basis(n, "side")))
+            _, ps, pt = _stacked_derivs(C, rational, "interior")
+            out.normals[idx] = np.cross(ps, pt).reshape(len(idx), -1, 3)
+            _, ps, pt = _stacked_derivs(C, rational, "gauss")
+            out.area[idx] = (_GAUSS_W @ np.linalg.norm(np.cross(ps, pt), axis=-1)) @ _GAUSS_W
+            X = C[..., :3] / C[..., 3:4] if rational else C
+            out.extent[idx] = np.ptp(X.reshape(len(idx), -1, 3), axis=1).max(axis=1)
+            rows = (X[:, :, 0], X[:, :, -1], X[:, 0, :], X[:, -1, :])
+            lengths = [np.linalg.norm(np.diff(r, axis=1), axis=-1).sum(axis=1) for r in rows]
+            out.perimeter[idx] = ((lengths[0] + lengths[1]) + lengths[2]) + lengths[3]
+    return out
+
+
+def _stacked_derivs(C: np.ndarray, rational: bool, grid: str):
+    """``_derivs`` of P nets (P, m+1, n+1, d) at once."""
+    m, n = C.shape[1] - 1, C.shape[2] - 1
+    (Bs, dBs), (Bt, dBt) = _bases(m, grid), _bases(n, grid)
+    h, hs, ht = (_stacked_tensor(Bs, C, Bt), _stacked_tensor(dBs, C, Bt), _stacked_tensor(Bs, C, dBt))
+    if not rational:
+        return h, hs, ht
+    w, ws, wt = h[..., 3:], hs[..., 3:], ht[..., 3:]
+    p = h[..., :3] / w
+    return p, (hs[..., :3] - p * ws) / w, (ht[..., :3] - p * wt) / w
 
 
 def _trimming_sides(patches: list[Patch]) -> list[tuple[int, object, float]]:
@@ -195,25 +260,18 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
     dev = side_dev = area_out = swept = 0.0
     folded = collapsed = thin = 0
     rung_eps = 1e-12 * max(u1 - u0, v1 - v0)
-    along_s: list[np.ndarray] = []
-    along_t: list[np.ndarray] = []
+    m = _measures(patches)
     for k, p in enumerate(patches):
-        pts = patch_points(p, g, g)
-        d = float(np.max(np.linalg.norm(pts - on_grid[k], axis=-1)))
-        along_s.append(patch_points(p, _SIDE_S, _ENDS))
-        along_t.append(patch_points(p, _ENDS, _SIDE_S))
+        d = float(np.max(np.linalg.norm(m.grid[k] - on_grid[k], axis=-1)))
         dev = max(dev, d)
         if d > p.bound + slack:
             problems.append(f"face {fr.face} patch {k}: deviation {d:.3g} exceeds its bound {p.bound:.3g}")
-        # folds: patch normal against the surface normal at the same points (interior samples)
-        _, ps, pt = _derivs(p, "interior")
-        n_patch = np.cross(ps, pt).reshape(-1, 3)
+        # folds: patch normal against the surface normal at the same points (interior samples),
         # only where both normals are meaningful: not at the surface's poles or creases (tiny
         # against the face's largest normal) and not where the patch itself degenerates
-        C = p.ctrl[..., :3] / p.ctrl[..., 3:4] if p.rational else p.ctrl
-        extent = float(np.ptp(C.reshape(-1, 3), axis=0).max())
+        n_patch = m.normals[k]
         live = ((np.linalg.norm(n_surf[k], axis=1) > 1e-6 * n_scale)
-                & (np.linalg.norm(n_patch, axis=1) > 1e-8 * extent**2))
+                & (np.linalg.norm(n_patch, axis=1) > 1e-8 * m.extent[k] ** 2))
         if np.any(np.sum(n_patch * n_surf[k], axis=1)[live] <= 0.0):
             folded += 1
             problems.append(f"face {fr.face} patch {k}: folded (its normal turns against the surface's)")
@@ -223,12 +281,11 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
             pb = p.top.H[a, :2] / p.top.H[a, 2]
             if float(np.abs(pa - pb).max()) <= rung_eps:  # (np.allclose cost 80 us a call)
                 collapsed += 1
-        area_out += patch_area(p)
+        area_out += float(m.area[k])
         # a boundary that moves by the bound sweeps at most perimeter x bound of area
-        swept += _perimeter(p) * (p.bound + fr.closure)
+        swept += float(m.perimeter[k]) * (p.bound + fr.closure)
     if patches:
-        width = tol.approx_rel * model.diagonal
-        thin = int(thin_sides_many(np.stack(along_s), np.stack(along_t), width).sum())
+        thin = int(thin_sides_many(m.along_s, m.along_t, tol.approx_rel * model.diagonal).sum())
     # trimming sides against S(pcurve(w))
     per_patch = np.zeros(len(patches))
     for (k, side, _), d in zip(sides, _side_distances(patches, sides, on_side), strict=True):
@@ -274,23 +331,37 @@ def thin_sides(along_s: np.ndarray, along_t: np.ndarray, width: float) -> bool:
     return bool(thin_sides_many(along_s[None], along_t[None], width)[0])
 
 
-_CHUNK = 256
-
-
 def thin_sides_many(along_s: np.ndarray, along_t: np.ndarray, width: float) -> np.ndarray:
     """``thin_sides`` of many patches at once: ``along_s`` (P, k, 2, 3), ``along_t`` (P, 2, k, 3);
     (P,) bool. (One patch at a time, the check was half of stage 1's verify step: 41864 calls of
-    a few small array operations each on occt__bug24595's 10466 patches.) Taken in chunks of
-    ``_CHUNK`` patches, which keeps the temporaries near 25 MB."""
-    if len(along_s) > _CHUNK:
-        return np.concatenate([thin_sides_many(along_s[i:i + _CHUNK], along_t[i:i + _CHUNK], width)
-                               for i in range(0, len(along_s), _CHUNK)])
+    a few small array operations each on occt__bug24595's 10466 patches.) The measured ones are
+    taken in chunks of ``_CHUNK`` patches, which keeps the temporaries near 25 MB."""
+    long_s = np.linalg.norm(np.diff(along_s, axis=1), axis=-1).sum(axis=1).max(axis=-1)
+    long_t = np.linalg.norm(np.diff(along_t, axis=2), axis=-1).sum(axis=2).max(axis=-1)
+    # opposite sides whose bounding boxes stand ``width`` apart are that far apart everywhere: only
+    # patches with a pair of sides nearer than that are measured (a few of a face's patches)
+    near = ((_box_gap(along_s[:, :, 0], along_s[:, :, 1]) < width)
+            | (_box_gap(along_t[:, 0], along_t[:, 1]) < width))
+    out = np.zeros(len(along_s), dtype=bool)
+    todo = np.flatnonzero(near & (np.maximum(long_s, long_t) > 10.0 * width))
+    for lo in range(0, len(todo), _CHUNK):
+        k = todo[lo:lo + _CHUNK]
+        out[k] = _thin_measured(along_s[k], along_t[k], width)
+    return out
+
+
+def _box_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance between the bounding boxes of the point sets a and b (P, k, 3); (P,)."""
+    gap = np.maximum(np.maximum(b.min(axis=1) - a.max(axis=1), a.min(axis=1) - b.max(axis=1)), 0.0)
+    return np.linalg.norm(gap, axis=-1)
+
+
+def _thin_measured(along_s: np.ndarray, along_t: np.ndarray, width: float) -> np.ndarray:
+    """``thin_sides_many``'s measure of the widths across (the lengths already checked)."""
     across_t = np.maximum(_side_gap(along_s[:, :, 0], along_s[:, :, 1]),
                           _side_gap(along_s[:, :, 1], along_s[:, :, 0]))
     across_s = np.maximum(_side_gap(along_t[:, 0], along_t[:, 1]), _side_gap(along_t[:, 1], along_t[:, 0]))
-    long_s = np.linalg.norm(np.diff(along_s, axis=1), axis=-1).sum(axis=1).max(axis=-1)
-    long_t = np.linalg.norm(np.diff(along_t, axis=2), axis=-1).sum(axis=2).max(axis=-1)
-    return (np.minimum(across_t, across_s) < width) & (np.maximum(long_s, long_t) > 10.0 * width)
+    return np.minimum(across_t, across_s) < width
 
 
 def _side_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
