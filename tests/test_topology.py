@@ -453,3 +453,15 @@ def test_split_sides_build_a_valid_face(tmp_path, tol):
     m = inspect(str(out), tol).model
     assert len(m.faces) == 2 and not any(trimmed(f) for f in m.faces)
     assert sum(1 for e in m.edges if e.uses == 2) == 3
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(0, 26), seed=st.integers(0, 2**32 - 1))
+def test_projection_bases_share_powers_to_the_bit(n, seed):
+    """``project``'s Newton steps take the bases of degrees n, n-1 and n-2 from one table of
+    powers; they are those of three separate evaluations, bit for bit."""
+    from watertight_cli.topology import _bases3, _basis
+
+    s = np.r_[np.random.default_rng(seed).random(30), 0.0, 1.0]
+    for j, got in zip((n, n - 1, n - 2), _bases3(n, s), strict=True):
+        assert np.array_equal(got, _basis(j, s))
