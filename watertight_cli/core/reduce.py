@@ -14,11 +14,30 @@ for a (looser) Cartesian statement.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .bezier import elevate_curve, elevation_matrix
 
 __all__ = ["reduce_curve", "reduce_surface", "reduction_bound"]
+
+
+@functools.lru_cache(maxsize=1024)
+def _pinv(target: int, r: int) -> np.ndarray:
+    """pinv of the elevation matrix from degree ``target`` by ``r`` (read-only, cached: the same few
+    degree pairs come back for every patch, and the SVDs were half of ``reduce_surface``)."""
+    out = np.linalg.pinv(elevation_matrix(target, r))
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=1024)
+def _interior_pinv(target: int, r: int) -> np.ndarray:
+    """pinv of the elevation matrix's inner columns (the boundary held), cached as ``_pinv``."""
+    out = np.linalg.pinv(elevation_matrix(target, r)[:, 1:-1])
+    out.flags.writeable = False
+    return out
 
 
 def reduction_bound(ctrl, new_ctrl) -> float:
@@ -134,7 +153,7 @@ def reduce_surface(
     d = ctrl.shape[2]
 
     if boundaries is None and not fix_boundary:
-        q = np.einsum("ia,ijd,jb->abd", np.linalg.pinv(eu).T, ctrl, np.linalg.pinv(ev).T)
+        q = np.einsum("ia,ijd,jb->abd", _pinv(mt, m - mt).T, ctrl, _pinv(nt, n - nt).T)
         return q, reduction_bound(ctrl, q)
 
     q = np.zeros((mt + 1, nt + 1, d))
@@ -172,7 +191,7 @@ def reduce_surface(
         # the solution is X = pinv(E_u^I) R pinv(E_v^I)^T (pinv of a Kronecker product).
         qb = q.copy()
         resid = ctrl - np.einsum("ai,ijd,bj->abd", eu, qb, ev)
-        pu = np.linalg.pinv(eu[:, 1:-1])  # (mt-1, m+1)
-        pv = np.linalg.pinv(ev[:, 1:-1])  # (nt-1, n+1)
+        pu = _interior_pinv(mt, m - mt)  # (mt-1, m+1)
+        pv = _interior_pinv(nt, n - nt)  # (nt-1, n+1)
         q[1:-1, 1:-1] = np.einsum("ai,ijd,bj->abd", pu, resid, pv)
     return q, reduction_bound(ctrl, q)
