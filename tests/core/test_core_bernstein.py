@@ -47,12 +47,13 @@ def test_basis_partition_of_unity_and_closed_form(seed, n):
 
 
 @SETTINGS
-@given(seeds, st.integers(1, 25))
-def test_basis_and_lower_are_the_two_bases_to_the_bit(seed, n):
-    """The derivative helper shares the powers of t and 1 - t and gives the same bits as two calls,
-    past the ends too."""
+@given(seeds, st.integers(1, 25), st.integers(1, 60))
+def test_basis_and_lower_are_the_two_bases_to_the_bit(seed, n, count):
+    """The derivative helper shares the powers of t and gives the same bits as two calls, for short
+    inputs too (a shared table of the powers of 1 - t, read reversed, differed in the last bit for
+    a single parameter at degrees 23 to 26) and past the ends."""
     rng = np.random.default_rng(seed)
-    t = np.concatenate([[0.0, 1.0, -0.01, 1.01], rng.random(40)])
+    t = np.concatenate([[0.0, 1.0, -0.01, 1.01], rng.random(count)])[-count:]
     b, lower = basis_and_lower(n, t)
     assert np.array_equal(b, basis(n, t)) and np.array_equal(lower, basis(n - 1, t))
 

@@ -87,27 +87,32 @@ def basis(n: int, t) -> np.ndarray:
     -------
     (k, n+1) float
     """
-    if n < 0:
-        raise ValueError(f"basis: degree must be >= 0, got {n}")
-    t = np.atleast_1d(np.asarray(t, dtype=float))
-    if t.ndim != 1:
-        raise ValueError(f"basis: t must be 1-D, got shape {t.shape}")
+    t = _parameters("basis", n, t, 0)
     e = _exponents(n)
     return _binom_row(n) * np.power(t[:, None], e) * np.power((1.0 - t)[:, None], e[::-1])
 
 
-def basis_and_lower(n: int, t) -> tuple[np.ndarray, np.ndarray]:
-    """``(basis(n, t), basis(n - 1, t))`` with the powers of t and 1 - t computed once (the same
-    values to the bit: for derivatives, where the powers are most of the cost on large grids).
-    n >= 1."""
-    if n < 1:
-        raise ValueError(f"basis_and_lower: degree must be >= 1, got {n}")
+def _parameters(name: str, n: int, t, lowest: int) -> np.ndarray:
+    """t as a 1-D float array, after checking it and the degree n (at least ``lowest``)."""
+    if n < lowest:
+        raise ValueError(f"{name}: degree must be >= {lowest}, got {n}")
     t = np.atleast_1d(np.asarray(t, dtype=float))
     if t.ndim != 1:
-        raise ValueError(f"basis_and_lower: t must be 1-D, got shape {t.shape}")
-    e = _exponents(n)
-    pt, ps = np.power(t[:, None], e), np.power((1.0 - t)[:, None], e)
-    return _binom_row(n) * pt * ps[:, ::-1], _binom_row(n - 1) * pt[:, :-1] * ps[:, -2::-1]
+        raise ValueError(f"{name}: t must be 1-D, got shape {t.shape}")
+    return t
+
+
+def basis_and_lower(n: int, t) -> tuple[np.ndarray, np.ndarray]:
+    """``(basis(n, t), basis(n - 1, t))`` with the powers of t computed once, for derivatives,
+    where the powers are most of the cost on large grids. The same values to the bit: the powers
+    of 1 - t are taken with the reversed exponents as ``basis`` does (numpy's power loop for a
+    reversed, strided view of a table rounds differently in the last bit for short inputs).
+    n >= 1."""
+    t = _parameters("basis_and_lower", n, t, 1)
+    e, s = _exponents(n), (1.0 - t)[:, None]
+    pt = np.power(t[:, None], e)
+    return (_binom_row(n) * pt * np.power(s, e[::-1]),
+            _binom_row(n - 1) * pt[:, :-1] * np.power(s, _exponents(n - 1)[::-1]))
 
 
 def scalar_fn(c):
