@@ -28,7 +28,7 @@ from .model import Model
 from .tolerances import Tolerances
 from .untrim import FaceResult, Patch, UntrimResult, cell_map, patch_points
 
-__all__ = ["FaceCheck", "Verification", "verify_untrim", "patch_area", "side_deviations"]
+__all__ = ["FaceCheck", "Verification", "verify_untrim", "side_deviations"]
 
 _GRID = 9  # samples per direction for the deviation and fold checks
 _ENDS = np.array([0.0, 1.0])  # with _SIDE_S: a patch's four sides for the thin check (``thin_sides``)
@@ -45,6 +45,9 @@ _CHUNK = 256  # patches measured together (keeps the temporaries of the thin che
 _GRIDS = {
     "gauss": _GAUSS_X,
     "interior": np.linspace(0.05, 0.95, _GRID),  # fold check: away from collapsed rungs and poles
+    "grid": np.linspace(0.0, 1.0, _GRID),  # deviation check
+    "side": _SIDE_S,  # with "ends": a patch's four sides, for the thin check
+    "ends": _ENDS,
 }
 
 @dataclass
@@ -95,32 +98,6 @@ def _bases(k: int, grid: str) -> tuple[np.ndarray, np.ndarray]:
     return b, k * (np.pad(lower, ((0, 0), (1, 0))) - np.pad(lower, ((0, 0), (0, 1))))
 
 
-def _tensor(Bs: np.ndarray, C: np.ndarray, Bt: np.ndarray) -> np.ndarray:
-    """sum_ij Bs[a, i] C[i, j] Bt[b, j] -> (a, b, d), as two matmuls."""
-    m1, n1, d = C.shape
-    X = (Bs @ C.reshape(m1, n1 * d)).reshape(-1, n1, d)
-    return Bt[None] @ X
-
-
-def _derivs(patch: Patch, grid: str):
-    """Points and first partial derivatives of a patch on the grid x grid."""
-    C = patch.ctrl
-    m, n = C.shape[0] - 1, C.shape[1] - 1
-    (Bs, dBs), (Bt, dBt) = _bases(m, grid), _bases(n, grid)
-    h, hs, ht = _tensor(Bs, C, Bt), _tensor(dBs, C, Bt), _tensor(Bs, C, dBt)
-    if not patch.rational:
-        return h, hs, ht
-    w, ws, wt = h[..., 3:], hs[..., 3:], ht[..., 3:]
-    p = h[..., :3] / w
-    return p, (hs[..., :3] - p * ws) / w, (ht[..., :3] - p * wt) / w
-
-
-def patch_area(patch: Patch) -> float:
-    """Area of a patch by tensor Gauss-Legendre quadrature (``_GAUSS`` nodes per direction)."""
-    _, ps, pt = _derivs(patch, "gauss")
-    return float(_GAUSS_W @ np.linalg.norm(np.cross(ps, pt), axis=-1) @ _GAUSS_W)
-
-
 @dataclass
 class _Measures:
     """Per patch of a face (first axis): the samples and sizes the verify step compares."""
@@ -130,20 +107,13 @@ class _Measures:
     along_t: np.ndarray  # (P, 2, _SIDE, 3) the sides s = 0 and s = 1 sampled along t
     normals: np.ndarray  # (P, _GRID * _GRID, 3) unnormalized normals on the interior grid
     extent: np.ndarray  # (P,) largest coordinate range of the control net
-    area: np.ndarray  # (P,) ``patch_area``
+    area: np.ndarray  # (P,) by tensor Gauss-Legendre quadrature (``_GAUSS`` nodes per direction)
     perimeter: np.ndarray  # (P,) length bound of the boundary: its four boundary control polygons
 
 
-_FIXED = {"grid": np.linspace(0.0, 1.0, _GRID), "side": _SIDE_S, "ends": _ENDS}
-
-
-@functools.lru_cache(maxsize=256)
-def _fixed_basis(k: int, name: str) -> np.ndarray:
-    return basis(k, _FIXED[name])
-
-
-def _stacked_tensor(Bs: np.ndarray, C: np.ndarray, Bt: np.ndarray) -> np.ndarray:
-    """``_tensor`` of P nets (P, m+1, n+1, d) at once -> (P, a, b, d)."""
+def _tensor(Bs: np.ndarray, C: np.ndarray, Bt: np.ndarray) -> np.ndarray:
+    """sum_ij Bs[a, i] C[p, i, j] Bt[b, j] for P nets C (P, m+1, n+1, d) -> (P, a, b, d), as two
+    matmuls."""
     P, m1, n1, d = C.shape
     X = (Bs @ C.reshape(P, m1, n1 * d)).reshape(P, -1, n1, d)
     return Bt[None, None] @ X
@@ -165,12 +135,13 @@ def _measures(patches: list[Patch]) -> _Measures:
             C = np.stack([patches[k].ctrl for k in idx])
             m, n = shape[0] - 1, shape[1] - 1
             cart = (lambda h: h[..., :3] / h[..., 3:4]) if rational else (lambda h: h)  # noqa: E731
-            out.grid[idx] = cart(_stacked_tensor(_fixed_basis(m, "grid"), C, _fixed_basis(n, "grid")))
-            out.along_s[idx] = cart(_stacked_tensor(_fixed_basis(m, "side"), C, _fixed_basis(n, "ends")))
-            out.along_t[idx] = cart(_stacked_tensor(_fixed_basis(m, "ends"), C, _fixed_basis(n, "side")))
-            _, ps, pt = _stacked_derivs(C, rational, "interior")
+            b = {name: (_bases(m, name)[0], _bases(n, name)[0]) for name in ("grid", "side", "ends")}
+            out.grid[idx] = cart(_tensor(b["grid"][0], C, b["grid"][1]))
+            out.along_s[idx] = cart(_tensor(b["side"][0], C, b["ends"][1]))
+            out.along_t[idx] = cart(_tensor(b["ends"][0], C, b["side"][1]))
+            _, ps, pt = _derivs(C, rational, "interior")
             out.normals[idx] = np.cross(ps, pt).reshape(len(idx), -1, 3)
-            _, ps, pt = _stacked_derivs(C, rational, "gauss")
+            _, ps, pt = _derivs(C, rational, "gauss")
             out.area[idx] = (_GAUSS_W @ np.linalg.norm(np.cross(ps, pt), axis=-1)) @ _GAUSS_W
             X = C[..., :3] / C[..., 3:4] if rational else C
             out.extent[idx] = np.ptp(X.reshape(len(idx), -1, 3), axis=1).max(axis=1)
@@ -180,11 +151,11 @@ def _measures(patches: list[Patch]) -> _Measures:
     return out
 
 
-def _stacked_derivs(C: np.ndarray, rational: bool, grid: str):
-    """``_derivs`` of P nets (P, m+1, n+1, d) at once."""
+def _derivs(C: np.ndarray, rational: bool, grid: str):
+    """Points and first partial derivatives of P nets (P, m+1, n+1, d) on the grid x grid."""
     m, n = C.shape[1] - 1, C.shape[2] - 1
     (Bs, dBs), (Bt, dBt) = _bases(m, grid), _bases(n, grid)
-    h, hs, ht = (_stacked_tensor(Bs, C, Bt), _stacked_tensor(dBs, C, Bt), _stacked_tensor(Bs, C, dBt))
+    h, hs, ht = _tensor(Bs, C, Bt), _tensor(dBs, C, Bt), _tensor(Bs, C, dBt)
     if not rational:
         return h, hs, ht
     w, ws, wt = h[..., 3:], hs[..., 3:], ht[..., 3:]
@@ -232,7 +203,7 @@ def _check_face(fr: FaceResult, model: Model, tol: Tolerances,
     face = model.faces[fr.face]
     surf = face.surface
     slack = tol.exact_rel * model.diagonal
-    g = np.linspace(0.0, 1.0, _GRID)
+    g = _GRIDS["grid"]
     gi = _GRIDS["interior"]
     problems: list[str] = list(fr.problems)
     u0, u1, v0, v1 = face.uv_bounds
