@@ -31,8 +31,6 @@ def _merged(knots: np.ndarray, degree: int, poles: np.ndarray, weights: np.ndarr
     coordinates, so ``tol`` bounds the change of the homogeneous form in model units."""
     from .core.bspline import merge_removable_spans
 
-    if poles.shape[0] == degree + 1:  # one span (every face and curve this tool writes): nothing to join
-        return None
     H = _homogeneous(poles, weights)
     scale = 1.0
     if weights is not None:
