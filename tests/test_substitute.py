@@ -137,6 +137,10 @@ def test_fixture_converts_with_invariants(tmp_path, name):
     assert rep["after"]["solids"] == rep["before"]["solids"]
     if rep["before"]["free_edges"] == 0:
         assert rep["after"]["free_edges"] == 0
+        # and a mesher's view of the file read back: every mesh edge has two triangles
+        assert rep["after"]["tessellation"]["watertight"], rep["after"]["tessellation"]
+    else:
+        assert rep["after"]["tessellation"]["free_edges"] > 0
     # every shared edge's faces follow its curve at the mapped parameter to rounding (I2's line)
     assert rep["after"]["edge_deviation_max"] <= Tolerances().watertight_rel * rep["diagonal"]
     for f in rep["faces"]:  # the measured deviation never exceeds the certified bound it replaces

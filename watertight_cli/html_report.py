@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import OutputError
+from .meshcheck import describe
 
 MAX_TRIANGLES = 20_000  # per picture, after decimation
 MAX_EDGE_SEGMENTS = 4_000  # gap-coloured edge segments per picture (worst edges first)
@@ -550,6 +551,8 @@ def convert_page(rep: dict, before: Scene | None, after: Scene | None, settings:
                   ("deviation bound max (mm)", rep.get("bound_after_max", rep["bound_max"])),
                   ("stage 1 sampled deviation max (mm)", rep["deviation_max_sampled"]),
                   ("volume change (relative)", a.get("volume_change_rel")), ("valid", a.get("valid")),
+                  ("tessellation of the read-back (kernel mesh, welded)",
+                   describe(a["tessellation"], b.get("free_edges") == 0) if a.get("tessellation") else None),
                   ("shared curves", ", ".join(f"{k} {v}" for k, v in rep.get("shared_curves", {}).items())),
                   ("problems", len(rep.get("problems", [])))]),
         "<h2>Gap distribution</h2>",

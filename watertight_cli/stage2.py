@@ -442,8 +442,12 @@ def _structure_report(structure, dst: str | None) -> dict | None:
 
 def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dict | None = None) -> dict:
     """Read the written file back and measure I1-I3 on it (I3 includes the tree and names where the
-    output is a tree, ``_structure_report``)."""
+    output is a tree, ``_structure_report``), and what a mesher sees of it: the kernel's
+    tessellation of the file as read, welded at the sliver floor (``meshcheck``; reported, not an
+    invariant)."""
     from .inspect import inspect, trimmed
+    from .meshcheck import tessellation_check
+    from .occ.mesh import triangulate
     from .occ.structure import same_tree
     from .report import edge_gap_rows
 
@@ -469,6 +473,8 @@ def _verify_written(dst: str, report: dict, tol: Tolerances, model_in, keep: dic
         "solids": m.solids,
         "shells": m.shells,
         "edge_gaps": edge_gap_rows(out.gaps),
+        # the read-back shape is not used after this: meshed in place
+        "tessellation": tessellation_check(triangulate(out.shape, copy=False), tol.sliver_rel * m.diagonal),
     })
     tree = report.get("structure") and report["structure"]["written"] == "tree"
     kept = None
@@ -515,6 +521,12 @@ def _structure_lines(st: dict | None, kept: bool | None) -> list[str]:
             f"{st['named_bodies']} named bodies; {how}"]
 
 
+def _tessellation_lines(t: dict | None, closed: bool) -> list[str]:
+    from .meshcheck import describe
+
+    return [f"  tessellation: {describe(t, closed)}"] if t else []
+
+
 def format_full_table(rep: dict) -> str:
     d = rep["diagonal"]
     b, a = rep["before"], rep["after"]
@@ -536,6 +548,7 @@ def format_full_table(rep: dict) -> str:
         f"smaller); bound {rep['bound_after_max']:.3g} (stage 1 {rep['bound_max']:.3g} + substitution "
         f"{rep['substitution_move_max']:.3g}); shared curves {rep['shared_curves']}",
         *_structure_lines(rep.get("structure"), a.get("structure_kept")),
+        *_tessellation_lines(a.get("tessellation"), b["free_edges"] == 0),
         "  invariants: " + ", ".join(f"{k} {'ok' if v else 'FAILED'}" for k, v in inv.items()),
         "  time: " + ", ".join(f"{k} {v:.1f}s" for k, v in rep["timings"].items()),
     ]

@@ -2,7 +2,8 @@
 
 The kernel's mesher (``BRepMesh_IncrementalMesh``) runs on a copy of the shape, coarse on purpose:
 the pictures decimate to a few tens of thousands of triangles anyway. Nothing here is used for
-measurement.
+measurement, apart from the read-back's tessellation check (``meshcheck``), which welds these
+triangles and counts their edges.
 """
 
 from __future__ import annotations
@@ -20,18 +21,20 @@ from .io import quiet
 
 
 def triangulate(shape: TopoDS_Shape, deflection_rel: float = 2e-3,
-                angle: float = 0.5) -> list[tuple[np.ndarray, np.ndarray]]:
+                angle: float = 0.5, copy: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per face, in the order of ``indexed(shape, TopAbs_FACE)`` (the model's face numbering):
     (vertices (n, 3) float, triangles (m, 3) int). A face the mesher leaves empty gives empty arrays.
 
     deflection_rel : chordal deflection relative to the bounding-box diagonal
     angle : angular deflection in radians
+    copy : mesh a copy, so that the caller's shape stays unmeshed; False meshes the shape itself
+        (a shape that is thrown away afterwards, such as the read-back's)
     """
-    copy = BRepBuilderAPI_Copy(shape, True, False).Shape()  # the caller's shape stays unmeshed
-    diag = diagonal(copy) or 1.0
+    target = BRepBuilderAPI_Copy(shape, True, False).Shape() if copy else shape
+    diag = diagonal(target) or 1.0
     with quiet():
-        BRepMesh_IncrementalMesh(copy, deflection_rel * diag, False, angle, False)
-    fmap = indexed(copy, TopAbs_FACE)
+        BRepMesh_IncrementalMesh(target, deflection_rel * diag, False, angle, False)
+    fmap = indexed(target, TopAbs_FACE)
     out = []
     for fi in range(1, fmap.Extent() + 1):
         face = TopoDS.Face_s(fmap.FindKey(fi))

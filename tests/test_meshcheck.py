@@ -1,0 +1,106 @@
+"""The tessellation check (``watertight_cli.meshcheck``): welding and edge counts."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from watertight_cli.meshcheck import tessellation_check, weld
+
+_CORNERS = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
+# the cube's six sides as corner loops (indices into _CORNERS: bit 2 x, bit 1 y, bit 0 z)
+_SIDES = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+
+
+def cube_faces(rng=None, jitter=0.0):
+    """A unit cube as the kernel triangulates a B-rep: per face its own copy of its nodes (a 3 x 3
+    grid: boundary nodes shared with the neighbours only by position), eight triangles each."""
+    out = []
+    for a, b, c, d in _SIDES:
+        A, B, C, D = (_CORNERS[k] for k in (a, b, c, d))
+        g = np.linspace(0.0, 1.0, 3)
+        pts = np.array([(1 - s) * (1 - t) * A + s * (1 - t) * B + s * t * C + (1 - s) * t * D
+                        for t in g for s in g])
+        if rng is not None:
+            pts = pts + rng.uniform(-jitter, jitter, pts.shape)
+        tris = []
+        for j in range(2):
+            for i in range(2):
+                k = 3 * j + i
+                tris += [(k, k + 1, k + 4), (k, k + 4, k + 3)]
+        out.append((pts, np.array(tris)))
+    return out
+
+
+def test_closed_cube_is_watertight():
+    c = tessellation_check(cube_faces(), 1e-9)
+    assert c["watertight"] and c["triangles"] == 48
+    assert c["free_edges"] == c["nonmanifold_edges"] == c["degenerate_triangles"] == 0
+
+
+def test_a_missing_triangle_leaves_three_free_edges():
+    faces = cube_faces()
+    pts, tris = faces[2]
+    faces[2] = (pts, tris[1:])
+    c = tessellation_check(faces, 1e-9)
+    assert not c["watertight"] and c["free_edges"] == 3 and c["nonmanifold_edges"] == 0
+
+
+def test_an_empty_face_is_not_watertight():
+    faces = cube_faces() + [(np.zeros((0, 3)), np.zeros((0, 3), dtype=int))]
+    c = tessellation_check(faces, 1e-9)
+    assert c["empty_faces"] == 1 and not c["watertight"]
+
+
+def test_nodes_farther_apart_than_the_weld_stay_apart():
+    rng = np.random.default_rng(1)
+    c = tessellation_check(cube_faces(rng, 1e-3), 1e-6)
+    assert not c["watertight"] and c["free_edges"] > 0
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(1e-9, 1e-3))
+def test_jitter_below_a_third_of_the_weld_keeps_the_cube_watertight(seed, distance):
+    """Every copy of a node moves by less than distance / 3 (per coordinate, so by less than
+    distance / sqrt(3) in space): any two copies are within the weld, wherever they fall."""
+    rng = np.random.default_rng(seed)
+    c = tessellation_check(cube_faces(rng, distance / 3.0), distance)
+    assert c["watertight"], c
+
+
+def test_a_face_narrower_than_the_weld_is_reported():
+    """A strip eps wide between two faces: welded, its two triangles collapse to segments and the
+    edge they lie on gets more than two triangles."""
+    eps = 1e-7
+    left = (np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, -1.0, 0.0]]), np.array([[0, 1, 2]]))
+    right = (np.array([[0.0, eps, 0.0], [1.0, eps, 0.0], [0.5, 1.0, 0.0]]), np.array([[1, 0, 2]]))
+    strip = (np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, eps, 0.0], [0.0, eps, 0.0]]),
+             np.array([[0, 1, 2], [0, 2, 3]]))
+    c = tessellation_check([left, right, strip], 1e-6)
+    assert c["degenerate_triangles"] == 2 and c["faces_with_degenerate"] == [2]
+    assert c["nonmanifold_edges"] == 1 and not c["watertight"]
+    # a weld below the strip's width keeps its triangles: six free edges around the three faces
+    # and none with more than two triangles
+    c = tessellation_check([left, right, strip], 1e-8)
+    assert c["degenerate_triangles"] == 0 and c["nonmanifold_edges"] == 0 and c["free_edges"] == 6
+
+
+def test_weld_joins_across_grid_lines_and_along_chains():
+    """Rounding to a grid would part 0.49999999 and 0.50000001; a chain of close points is one
+    node even where its ends are farther apart than the weld."""
+    pts = np.array([[0.49999999, 0.0, 0.0], [0.50000001, 0.0, 0.0], [2.0, 0.0, 0.0],
+                    [2.0 + 0.8e-6, 0.0, 0.0], [2.0 + 1.6e-6, 0.0, 0.0]])
+    node = weld(pts, 1e-6)
+    assert list(node) == [0, 0, 1, 1, 1]
+    assert len(weld(np.zeros((0, 3)), 1.0)) == 0
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_counts_do_not_depend_on_face_order(seed):
+    rng = np.random.default_rng(seed)
+    faces = cube_faces(rng, 1e-4)  # some nodes weld at 1e-4, some do not
+    order = rng.permutation(len(faces))
+    a = tessellation_check(faces, 1e-4)
+    b = tessellation_check([faces[i] for i in order], 1e-4)
+    for k in ("triangles", "free_edges", "nonmanifold_edges", "degenerate_triangles", "watertight"):
+        assert a[k] == b[k]

@@ -1,0 +1,110 @@
+"""Mesh-level check of a tessellation (arrays in, a summary out; no kernel code).
+
+What a mesher sees of the written model: the faces' triangles, with nodes closer than a weld
+distance taken as one node. The mesh is watertight when every edge of it has exactly two
+triangles. Two things break that on a model whose faces share their edges exactly (I2):
+
+- a free mesh edge (one triangle): a hole, or an open boundary where the input is open;
+- an edge with three or more triangles: welding joined nodes across a face narrower than the weld
+  distance somewhere (a cusp where two of its sides run together, or a sliver), which leaves
+  zero-area triangles and lays the face's triangles over its neighbours' edges.
+
+The weld distance is the caller's (``Tolerances.sliver_rel`` of the diagonal in the read-back:
+the narrowest cell stage 1 makes, below which two points are one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["describe", "tessellation_check", "weld"]
+
+_FIRST = 10  # faces listed by index in the summary
+
+
+def weld(points: np.ndarray, distance: float) -> np.ndarray:
+    """Index of each point's node: points joined by a chain of steps no longer than ``distance``
+    are one node (numbered from 0 in the order of their first point). Unlike rounding to a grid,
+    two points on either side of a grid line still join."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, dtype=float)
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, dtype=int)
+    pairs = (cKDTree(points).query_pairs(distance, output_type="ndarray") if distance > 0
+             else np.zeros((0, 2), dtype=int))
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    # renumber by first appearance, so that the numbering does not depend on scipy's
+    first = np.full(label.max() + 1, n)
+    np.minimum.at(first, label, np.arange(n))
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return rank[label]
+
+
+def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: float) -> dict:
+    """Weld the faces' triangles (per face: nodes (n, 3), triangles (m, 3) indices into them) at
+    ``distance`` and count what breaks watertightness (see the module's text). Returns a dict:
+    triangles, empty_faces (faces with no triangle), free_edges (mesh edges of one triangle),
+    nonmanifold_edges (three or more), degenerate_triangles (two corners welded into one node),
+    faces_with_degenerate (the first few face indices), weld (the distance used), and watertight
+    (trimesh's: every mesh edge has exactly two triangles; and no face is empty)."""
+    import trimesh
+
+    pts, tris, owner = [], [], []
+    base = 0
+    empty = 0
+    for fi, (p, t) in enumerate(faces):
+        if len(t) == 0:
+            empty += 1
+            continue
+        pts.append(np.asarray(p, dtype=float))
+        tris.append(np.asarray(t, dtype=int) + base)
+        owner.append(np.full(len(t), fi))
+        base += len(p)
+    out = {"triangles": 0, "empty_faces": empty, "free_edges": 0, "nonmanifold_edges": 0,
+           "degenerate_triangles": 0, "faces_with_degenerate": [], "weld": distance}
+    if not tris:
+        out["watertight"] = False
+        return out
+    P = np.concatenate(pts)
+    node = weld(P, distance)
+    V = np.empty((int(node.max()) + 1, 3))
+    V[node] = P  # a node stands where one of its points is
+    T = node[np.concatenate(tris)]
+    own = np.concatenate(owner)
+    bad = (T[:, 0] == T[:, 1]) | (T[:, 1] == T[:, 2]) | (T[:, 2] == T[:, 0])
+    # a welded-away triangle is a segment: its edges still count (twice over one pair), as a
+    # mesher that keeps it would see them
+    mesh = trimesh.Trimesh(vertices=V, faces=T, process=False, validate=False)
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    out.update({
+        "triangles": int(len(T)),
+        "free_edges": int((counts == 1).sum()),
+        "nonmanifold_edges": int((counts > 2).sum()),
+        "degenerate_triangles": int(bad.sum()),
+        "faces_with_degenerate": [int(f) for f in np.unique(own[bad])[:_FIRST]],
+    })
+    out["watertight"] = bool(empty == 0 and mesh.is_watertight)
+    return out
+
+
+def describe(t: dict, closed: bool) -> str:
+    """One line for a ``tessellation_check`` summary (the report's table and HTML page). ``closed``:
+    the input had no free edges, so free mesh edges are faults, not its open boundary."""
+    faults = [f"{t[k]} {what}" for k, what in (
+        ("free_edges", "free mesh edges" + ("" if closed else " (open input)")),
+        ("nonmanifold_edges", "mesh edges with 3+ triangles"),
+        ("degenerate_triangles", "triangles with two corners at one node"),
+        ("empty_faces", "faces left untriangulated")) if t[k]]
+    listed = t["faces_with_degenerate"]
+    where = (f" (faces {', '.join(map(str, listed))}{', ...' if len(listed) >= _FIRST else ''})"
+             if listed else "")
+    state = "watertight" if t["watertight"] else ("not watertight" if closed else "open")
+    return (f"{state}, {t['triangles']} triangles welded at {t['weld']:.2g}"
+            + (": " + ", ".join(faults) + where if faults else ""))
