@@ -43,6 +43,8 @@ def test_a_missing_triangle_leaves_three_free_edges():
     faces[2] = (pts, tris[1:])
     c = tessellation_check(faces, 1e-9)
     assert not c["watertight"] and c["free_edges"] == 3 and c["nonmanifold_edges"] == 0
+    # the hole's three edges: two inside face 2, one on its side with face 4 (that one's triangle)
+    assert c["faces_with_free_edges"] == [2, 4]
 
 
 def test_an_empty_face_is_not_watertight():

@@ -52,8 +52,9 @@ def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: flo
     ``distance`` and count what breaks watertightness (see the module's text). Returns a dict:
     triangles, empty_faces (faces with no triangle), free_edges (mesh edges of one triangle),
     nonmanifold_edges (three or more), degenerate_triangles (two corners welded into one node),
-    faces_with_degenerate (the first few face indices), weld (the distance used), and watertight
-    (trimesh's: every mesh edge has exactly two triangles; and no face is empty)."""
+    faces_with_degenerate and faces_with_free_edges (the first few face indices), weld (the
+    distance used), and watertight (trimesh's: every mesh edge has exactly two triangles; and no
+    face is empty)."""
     import trimesh
 
     pts, tris, owner = [], [], []
@@ -68,7 +69,8 @@ def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: flo
         owner.append(np.full(len(t), fi))
         base += len(p)
     out = {"triangles": 0, "empty_faces": empty, "free_edges": 0, "nonmanifold_edges": 0,
-           "degenerate_triangles": 0, "faces_with_degenerate": [], "weld": distance}
+           "degenerate_triangles": 0, "faces_with_degenerate": [], "faces_with_free_edges": [],
+           "weld": distance}
     if not tris:
         out["watertight"] = False
         return out
@@ -82,13 +84,16 @@ def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: flo
     # a welded-away triangle is a segment: its edges still count (twice over one pair), as a
     # mesher that keeps it would see them
     mesh = trimesh.Trimesh(vertices=V, faces=T, process=False, validate=False)
-    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    _, inverse, counts = np.unique(mesh.edges_sorted, axis=0, return_inverse=True, return_counts=True)
+    # edges_sorted holds each triangle's three edges in turn: edge k belongs to triangle k // 3
+    free_tri = np.unique(np.flatnonzero(counts[inverse.reshape(-1)] == 1) // 3)
     out.update({
         "triangles": int(len(T)),
         "free_edges": int((counts == 1).sum()),
         "nonmanifold_edges": int((counts > 2).sum()),
         "degenerate_triangles": int(bad.sum()),
         "faces_with_degenerate": [int(f) for f in np.unique(own[bad])[:_FIRST]],
+        "faces_with_free_edges": [int(f) for f in np.unique(own[free_tri])[:_FIRST]],
     })
     out["watertight"] = bool(empty == 0 and mesh.is_watertight)
     return out
@@ -102,9 +107,10 @@ def describe(t: dict, closed: bool) -> str:
         ("nonmanifold_edges", "mesh edges with 3+ triangles"),
         ("degenerate_triangles", "triangles with two corners at one node"),
         ("empty_faces", "faces left untriangulated")) if t[k]]
-    listed = t["faces_with_degenerate"]
-    where = (f" (faces {', '.join(map(str, listed))}{', ...' if len(listed) >= _FIRST else ''})"
-             if listed else "")
+    where = [f"{what} in faces {', '.join(map(str, listed))}{', ...' if len(listed) >= _FIRST else ''}"
+             for what, listed, show in (("free mesh edges", t.get("faces_with_free_edges", []), closed),
+                                        ("two corners at one node", t["faces_with_degenerate"], True))
+             if listed and show]
     state = "watertight" if t["watertight"] else ("not watertight" if closed else "open")
     return (f"{state}, {t['triangles']} triangles welded at {t['weld']:.2g}"
-            + (": " + ", ".join(faults) + where if faults else ""))
+            + (": " + ", ".join(faults) if faults else "") + (f" ({'; '.join(where)})" if where else ""))
