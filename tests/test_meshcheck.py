@@ -106,3 +106,24 @@ def test_counts_do_not_depend_on_face_order(seed):
     b = tessellation_check([faces[i] for i in order], 1e-4)
     for k in ("triangles", "free_edges", "nonmanifold_edges", "degenerate_triangles", "watertight"):
         assert a[k] == b[k]
+
+
+def test_a_mesher_failure_is_reported_and_the_conversion_goes_on(tmp_path, monkeypatch):
+    """The tessellation is a figure, not a gate: a kernel exception while meshing the read-back
+    leaves the reason in the report, and the file, the invariants and the exit status stand."""
+    from watertight_cli.convert import convert_file
+    from watertight_cli.occ import mesh
+    from watertight_cli.stage2 import format_full_table
+    from watertight_cli.tolerances import Tolerances
+
+    from .conftest import fixture_path
+
+    def broken(shape, deflection_rel=2e-3, angle=0.5, copy=True):
+        raise RuntimeError("mesher gave up\nsecond line")
+
+    monkeypatch.setattr(mesh, "triangulate", broken)
+    out = tmp_path / "o.step"
+    rep = convert_file(str(fixture_path("two_solids.step")), str(out), Tolerances())
+    assert out.exists() and rep["ok"]
+    assert rep["after"]["tessellation"] == {"error": "RuntimeError: mesher gave up"}
+    assert "tessellation: not measured (RuntimeError: mesher gave up)" in format_full_table(rep)

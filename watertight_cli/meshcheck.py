@@ -102,6 +102,8 @@ def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: flo
 def describe(t: dict, closed: bool) -> str:
     """One line for a ``tessellation_check`` summary (the report's table and HTML page). ``closed``:
     the input had no free edges, so free mesh edges are faults, not its open boundary."""
+    if "error" in t:
+        return f"not measured ({t['error']})"
     faults = [f"{t[k]} {what}" for k, what in (
         ("free_edges", "free mesh edges" + ("" if closed else " (open input)")),
         ("nonmanifold_edges", "mesh edges with 3+ triangles"),

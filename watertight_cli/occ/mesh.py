@@ -52,3 +52,17 @@ def triangulate(shape: TopoDS_Shape, deflection_rel: float = 2e-3,
         tris = np.array([tri.Triangle(i).Get() for i in range(1, tri.NbTriangles() + 1)], dtype=int) - 1
         out.append((pts, tris))
     return out
+
+
+def measure_tessellation(shape: TopoDS_Shape, distance: float) -> dict:
+    """``meshcheck.tessellation_check`` of the shape's faces, meshed in place (a shape the caller
+    throws away afterwards, such as the read-back's), welded at ``distance``. A figure, not a gate:
+    where the mesher fails, the summary holds the reason (``error``) and the caller goes on."""
+    from ..meshcheck import tessellation_check
+
+    try:
+        faces = triangulate(shape, copy=False)
+    except Exception as exc:  # the kernel's exceptions (Standard_Failure) share no narrower base
+        text = str(exc).splitlines()
+        return {"error": f"{type(exc).__name__}: {text[0] if text else 'no message'}"}
+    return tessellation_check(faces, distance)
