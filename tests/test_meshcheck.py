@@ -127,3 +127,19 @@ def test_a_mesher_failure_is_reported_and_the_conversion_goes_on(tmp_path, monke
     assert out.exists() and rep["ok"]
     assert rep["after"]["tessellation"] == {"error": "RuntimeError: mesher gave up"}
     assert "tessellation: not measured (RuntimeError: mesher gave up)" in format_full_table(rep)
+
+
+def test_touching_shells_are_checked_each_on_its_own():
+    """Two cubes that share a side: one mesh of both has four triangles on each edge of the shared
+    side; shell by shell, each cube is closed."""
+    a = cube_faces()
+    b = [(p + np.array([1.0, 0.0, 0.0]), t) for p, t in cube_faces()]
+    whole = tessellation_check(a + b, 1e-9)
+    assert not whole["watertight"] and whole["nonmanifold_edges"] > 0
+    each = tessellation_check(a + b, 1e-9, [list(range(6)), list(range(6, 12))])
+    assert each["watertight"] and each["shells"] == 2 and each["triangles"] == 96
+    assert each["nonmanifold_edges"] == each["free_edges"] == 0
+    # faces in no shell are checked as one more: half a cube is open
+    rest = tessellation_check(a + b[:3], 1e-9, [list(range(6))])
+    assert rest["shells"] == 2 and not rest["watertight"] and rest["free_edges"] > 0
+    assert set(rest["faces_with_free_edges"]) <= {6, 7, 8}

@@ -47,14 +47,41 @@ def weld(points: np.ndarray, distance: float) -> np.ndarray:
     return rank[label]
 
 
-def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: float) -> dict:
+def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: float,
+                       shells: list[list[int]] | None = None) -> dict:
     """Weld the faces' triangles (per face: nodes (n, 3), triangles (m, 3) indices into them) at
-    ``distance`` and count what breaks watertightness (see the module's text). Returns a dict:
-    triangles, empty_faces (faces with no triangle), free_edges (mesh edges of one triangle),
-    nonmanifold_edges (three or more), degenerate_triangles (two corners welded into one node),
-    faces_with_degenerate and faces_with_free_edges (the first few face indices), weld (the
-    distance used), and watertight (trimesh's: every mesh edge has exactly two triangles; and no
-    face is empty)."""
+    ``distance`` and count what breaks watertightness (see the module's text), shell by shell:
+    ``shells`` lists each shell's face indices (None: all faces are one shell), and faces in no
+    shell are one more. Solids that touch (an assembly's parts, a wing against its fuselage)
+    share mesh edges between their shells, which says nothing about either shell, so each is
+    welded and counted on its own and the counts are summed.
+
+    Returns a dict: shells, triangles, empty_faces (faces with no triangle), free_edges (mesh
+    edges of one triangle), nonmanifold_edges (three or more), degenerate_triangles (two corners
+    welded into one node), faces_with_degenerate and faces_with_free_edges (the first few face
+    indices), weld (the distance used), and watertight (trimesh's, for every shell: each mesh
+    edge has exactly two triangles; and no face is empty)."""
+    groups = [list(range(len(faces)))] if shells is None else [list(g) for g in shells if len(g)]
+    if shells is not None:
+        seen = {i for g in groups for i in g}
+        rest = [i for i in range(len(faces)) if i not in seen]
+        if rest:
+            groups.append(rest)
+    out = {"shells": len(groups), "triangles": 0, "empty_faces": 0, "free_edges": 0, "nonmanifold_edges": 0,
+           "degenerate_triangles": 0, "faces_with_degenerate": [], "faces_with_free_edges": [],
+           "weld": distance, "watertight": bool(groups)}
+    for g in groups:
+        one = _check_shell([faces[i] for i in g], np.asarray(g, dtype=int), distance)
+        for k in ("triangles", "empty_faces", "free_edges", "nonmanifold_edges", "degenerate_triangles"):
+            out[k] += one[k]
+        for k in ("faces_with_degenerate", "faces_with_free_edges"):
+            out[k] = sorted(set(out[k]) | set(one[k]))[:_FIRST]
+        out["watertight"] = out["watertight"] and one["watertight"]
+    return out
+
+
+def _check_shell(faces: list[tuple[np.ndarray, np.ndarray]], index: np.ndarray, distance: float) -> dict:
+    """``tessellation_check`` of one shell's faces; ``index`` maps them to the caller's numbers."""
     import trimesh
 
     pts, tris, owner = [], [], []
@@ -66,13 +93,12 @@ def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: flo
             continue
         pts.append(np.asarray(p, dtype=float))
         tris.append(np.asarray(t, dtype=int) + base)
-        owner.append(np.full(len(t), fi))
+        owner.append(np.full(len(t), index[fi]))
         base += len(p)
     out = {"triangles": 0, "empty_faces": empty, "free_edges": 0, "nonmanifold_edges": 0,
            "degenerate_triangles": 0, "faces_with_degenerate": [], "faces_with_free_edges": [],
-           "weld": distance}
+           "watertight": False}
     if not tris:
-        out["watertight"] = False
         return out
     P = np.concatenate(pts)
     node = weld(P, distance)
@@ -94,8 +120,8 @@ def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: flo
         "degenerate_triangles": int(bad.sum()),
         "faces_with_degenerate": [int(f) for f in np.unique(own[bad])[:_FIRST]],
         "faces_with_free_edges": [int(f) for f in np.unique(own[free_tri])[:_FIRST]],
+        "watertight": bool(empty == 0 and mesh.is_watertight),
     })
-    out["watertight"] = bool(empty == 0 and mesh.is_watertight)
     return out
 
 
@@ -114,5 +140,6 @@ def describe(t: dict, closed: bool) -> str:
                                         ("two corners at one node", t["faces_with_degenerate"], True))
              if listed and show]
     state = "watertight" if t["watertight"] else ("not watertight" if closed else "open")
-    return (f"{state}, {t['triangles']} triangles welded at {t['weld']:.2g}"
+    shells = f" in {t['shells']} shells" if t.get("shells", 1) > 1 else ""
+    return (f"{state}, {t['triangles']} triangles{shells} welded at {t['weld']:.2g}"
             + (": " + ", ".join(faults) if faults else "") + (f" ({'; '.join(where)})" if where else ""))

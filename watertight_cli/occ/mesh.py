@@ -12,7 +12,8 @@ import numpy as np
 from OCP.BRep import BRep_Tool
 from OCP.BRepBuilderAPI import BRepBuilderAPI_Copy
 from OCP.BRepMesh import BRepMesh_IncrementalMesh
-from OCP.TopAbs import TopAbs_FACE
+from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL
+from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape
 
@@ -58,9 +59,10 @@ def triangulate(shape: TopoDS_Shape, deflection_rel: float = 2e-3, angle: float 
 
 
 def measure_tessellation(shape: TopoDS_Shape, distance: float) -> dict:
-    """``meshcheck.tessellation_check`` of the shape's faces, meshed in place (a shape the caller
-    throws away afterwards, such as the read-back's), welded at ``distance``. A figure, not a gate:
-    where the mesher fails, the summary holds the reason (``error``) and the caller goes on."""
+    """``meshcheck.tessellation_check`` of the shape's faces, shell by shell (``shell_faces``),
+    meshed in place (a shape the caller throws away afterwards, such as the read-back's), welded at
+    ``distance``. A figure, not a gate: where the mesher fails, the summary holds the reason
+    (``error``) and the caller goes on."""
     from ..meshcheck import tessellation_check
 
     try:
@@ -68,4 +70,19 @@ def measure_tessellation(shape: TopoDS_Shape, distance: float) -> dict:
     except Exception as exc:  # the kernel's exceptions (Standard_Failure) share no narrower base
         text = str(exc).splitlines()
         return {"error": f"{type(exc).__name__}: {text[0] if text else 'no message'}"}
-    return tessellation_check(faces, distance)
+    return tessellation_check(faces, distance, shell_faces(shape))
+
+
+def shell_faces(shape: TopoDS_Shape) -> list[list[int]]:
+    """Per shell of the shape, the indices of its faces in ``indexed(shape, TopAbs_FACE)`` order."""
+    fmap = indexed(shape, TopAbs_FACE)
+    smap = indexed(shape, TopAbs_SHELL)
+    out = []
+    for si in range(1, smap.Extent() + 1):
+        ex = TopExp_Explorer(smap.FindKey(si), TopAbs_FACE)
+        faces = []
+        while ex.More():
+            faces.append(fmap.FindIndex(ex.Current()) - 1)
+            ex.Next()
+        out.append(sorted(set(faces)))
+    return out
