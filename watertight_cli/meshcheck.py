@@ -59,8 +59,8 @@ def tessellation_check(faces: list[tuple[np.ndarray, np.ndarray]], distance: flo
     Returns a dict: shells, triangles, empty_faces (faces with no triangle), free_edges (mesh
     edges of one triangle), nonmanifold_edges (three or more), degenerate_triangles (two corners
     welded into one node), faces_with_degenerate and faces_with_free_edges (the first few face
-    indices), weld (the distance used), and watertight (trimesh's, for every shell: each mesh
-    edge has exactly two triangles; and no face is empty)."""
+    indices), weld (the distance used), and watertight (for every shell, trimesh's definition:
+    each mesh edge has exactly two triangles; and no face is empty)."""
     groups = [list(range(len(faces)))] if shells is None else [list(g) for g in shells if len(g)]
     if shells is not None:
         seen = {i for g in groups for i in g}
@@ -109,8 +109,8 @@ def _check_shell(faces: list[tuple[np.ndarray, np.ndarray]], index: np.ndarray, 
     bad = (T[:, 0] == T[:, 1]) | (T[:, 1] == T[:, 2]) | (T[:, 2] == T[:, 0])
     # a welded-away triangle is a segment: its edges still count (twice over one pair), as a
     # mesher that keeps it would see them
-    mesh = trimesh.Trimesh(vertices=V, faces=T, process=False, validate=False)
-    _, inverse, counts = np.unique(mesh.edges_sorted, axis=0, return_inverse=True, return_counts=True)
+    edges = trimesh.Trimesh(vertices=V, faces=T, process=False, validate=False).edges_sorted
+    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
     # edges_sorted holds each triangle's three edges in turn: edge k belongs to triangle k // 3
     free_tri = np.unique(np.flatnonzero(counts[inverse.reshape(-1)] == 1) // 3)
     out.update({
@@ -120,7 +120,8 @@ def _check_shell(faces: list[tuple[np.ndarray, np.ndarray]], index: np.ndarray, 
         "degenerate_triangles": int(bad.sum()),
         "faces_with_degenerate": [int(f) for f in np.unique(own[bad])[:_FIRST]],
         "faces_with_free_edges": [int(f) for f in np.unique(own[free_tri])[:_FIRST]],
-        "watertight": bool(empty == 0 and mesh.is_watertight),
+        # trimesh's is_watertight (every edge has exactly two triangles), from the same grouping
+        "watertight": bool(empty == 0 and np.all(counts == 2)),
     })
     return out
 
