@@ -40,7 +40,10 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
 
     t = time.perf_counter()
     tick = progress("build", len(result.patches)) if progress else None
+    lenses = _collapse_lenses(result, in_groups, tol, model.diagonal)
     nets, quads = _untriangle(result, tol, model.diagonal)
+    for f, moved in lenses["per_face"].items():  # in each face's I4 measure, like the triangle fits
+        quads["per_face"][f] = quads["per_face"].get(f, 0.0) + moved
     t_cut = time.perf_counter()
     splits, slender = _split_slender(nets, tol, model.diagonal)
     times["slender"] = time.perf_counter() - t_cut
@@ -137,6 +140,11 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             # patches with one collapsed side, made again with four (``core.triangle``), those
             # kept (no fit within the budget), and the largest two-sided distance of a new one;
             # ``triangles_tips_cut``: of those remade, the ones made again at their tip alone
+            # triangular cells thinner than half the tolerance, taken out (``lenses``): their
+            # neighbours now close over them; those kept had a side without one partner
+            "lenses_collapsed": lenses["collapsed"],
+            "lenses_kept": lenses["left"],
+            "lens_width_max": lenses["width_max"],
             "triangles_remade": quads["remade"],
             "triangles_tips_cut": quads["tips"],
             "triangles_kept": quads["kept"],
@@ -171,6 +179,46 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     report["ok"] = all(invariants.values())
     report["timings"] = times
     return report
+
+
+def _collapse_lenses(result, in_groups, tol: Tolerances, diagonal: float) -> dict:
+    """Thin triangular cells (every point within half the tolerance of the side facing the
+    collapsed one) taken out of ``result`` in place, one input shell or solid at a time
+    (``lenses.collapse_lenses``): the patch across each one's rung is cut in two, which take the
+    lens's sides, and each face's largest move is returned for its I4 measure (``per_face``), the
+    lens's own width included for its face."""
+    from dataclasses import replace
+
+    from .lenses import collapse_lenses
+    from .topology import JOIN_REL
+
+    info = {"collapsed": 0, "left": 0, "width_max": 0.0, "per_face": {}}
+    for faces, _, _ in in_groups:
+        items = [(result.faces[i], j) for i in faces for j in range(len(result.faces[i].patches))]
+        done = collapse_lenses([(fr.patches[j].ctrl, fr.patches[j].rational) for fr, j in items],
+                               JOIN_REL * diagonal, 0.5 * tol.approx_rel * diagonal, tol.max_degree)
+        info["left"] += done.left
+        if not done.collapsed:
+            continue
+        info["collapsed"] += done.collapsed
+        info["width_max"] = max(info["width_max"], done.width_max)
+        dropped: dict[int, set[int]] = {}
+        added: dict[int, list] = {}
+        for k, moved in done.moved.items():
+            fr, j = items[k]
+            info["per_face"][fr.face] = max(info["per_face"].get(fr.face, 0.0), moved)
+            if done.nets[k] is None:
+                dropped.setdefault(id(fr), set()).add(j)
+            else:
+                fr.patches[j].ctrl = done.nets[k][0]
+        for k, q in sorted(done.parent.items()):  # halves of a patch cut at a lens's tip
+            fr, j = items[q]
+            added.setdefault(id(fr), []).append(replace(fr.patches[j], ctrl=done.nets[k][0]))
+        for i in faces:
+            fr = result.faces[i]
+            fr.patches = [p for j, p in enumerate(fr.patches) if j not in dropped.get(id(fr), ())]
+            fr.patches += added.get(id(fr), [])
+    return info
 
 
 def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
@@ -534,6 +582,7 @@ def format_full_table(rep: dict) -> str:
         f"  faces in {rep['faces_in']}, patches out {rep['patches_out']}, degree max {rep['degree']['max']} "
         f"median {rep['degree']['median']:g}, T-junctions {rep['t_junctions']}, "
         f"thin patches {rep.get('thin_patches', 0)}"
+        + (f", thin lenses taken out {a['lenses_collapsed']}" if a.get("lenses_collapsed") else "")
         + (f", slender patches split {a['slender_patches_split']} (vertices {a['slender_split_vertices']})"
            if a.get("slender_patches_split") else ""),
         f"  gap: before {b['gap_max']:.3g} -> after "
