@@ -102,3 +102,48 @@ def test_a_lens_whose_rung_belongs_to_a_rational_patch_stays():
     done = collapse_lenses(nets, 1e-9, width=1e-4)
     assert done.collapsed == 0 and done.left == 1  # the rung's patch is rational: kept
     assert done.nets[3][1] and np.array_equal(done.nets[3][0], nets[3][0])
+
+
+def _parabola_scene(w: float):
+    """A lens whose two sides are the halves of one parabola K from B = (0, 0) through
+    A = (1, w) to C = (2, 0), over the straight rung B -> C, with the same three neighbours."""
+    from watertight_cli.core.bezier import curve_segment, elevate_curve
+
+    K = np.array([[0.0, 0.0, 0.0], [1.0, 2.0 * w, 0.0], [2.0, 0.0, 0.0]])
+    bottom, top = curve_segment(K, 0.5, 0.0), curve_segment(K, 0.5, 1.0)  # A -> B, A -> C
+    A = bottom[0]
+    rung = elevate_curve(np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]), 1)
+    s = np.linspace(0.0, 1.0, 3)[:, None, None]
+    lens = (1.0 - s) * np.broadcast_to(A, (1, 3, 3)) + s * rung[None, :, :]
+    lens[:, 0], lens[:, -1] = bottom, top
+    up = np.array([1.0, 1.0, 0.0])
+    nb = _ruled(bottom, _line(up, np.array([0.0, 1.0, 0.0]), 2), 2)
+    nt = _ruled(top, _line(up, np.array([2.0, 1.0, 0.0]), 2), 2)
+    nr = _ruled(_line(np.zeros(3), np.array([2.0, 0.0, 0.0])),
+                _line(np.array([0.0, -1.0, 0.0]), np.array([2.0, -1.0, 0.0])))
+    return K, [(lens, False), (nb, False), (nt, False), (nr, False)]
+
+
+def test_a_lens_on_one_polynomial_is_closed_by_one_row_and_no_cut():
+    K, nets = _parabola_scene(1e-5)
+    done = collapse_lenses(nets, 1e-9, width=1e-4, exact=1e-13)
+    assert done.collapsed == 1 and done.cut == 0 and done.nets[0] is None
+    assert len(done.nets) == 4 and not done.parent  # nothing added
+    nr = done.nets[3][0]
+    # the patch below now runs along K itself (elevated to its degree 3), ends B and C exact
+    from watertight_cli.core.bezier import elevate_curve
+
+    assert np.abs(nr[:, 0] - elevate_curve(K, 1)).max() <= 1e-13
+    assert np.array_equal(nr[0, 0], K[0]) and np.array_equal(nr[-1, 0], K[-1])
+    assert all(np.array_equal(done.nets[i][0], nets[i][0]) for i in (1, 2))
+    kept = [n for n in done.nets if n is not None]
+    topo = connect(kept, 1e-9)
+    assert _inner_free(topo) == 0 and topo.t_vertices == 1  # A, where the two above meet
+    # the move is the control points' (K's elevated middle points stand 4/3 w off the rung)
+    assert done.moved[3] == pytest.approx(4.0 / 3.0 * 1e-5) and done.moved[0] == pytest.approx(1e-5)
+
+
+def test_a_lens_with_a_kink_at_its_tip_is_cut_out_instead():
+    nets = _scene(1e-5)  # two straight sides: one row cannot hold both
+    done = collapse_lenses(nets, 1e-9, width=1e-4, exact=1e-13)
+    assert done.collapsed == 1 and done.cut == 1 and done.parent == {4: 3}

@@ -140,9 +140,11 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             # patches with one collapsed side, made again with four (``core.triangle``), those
             # kept (no fit within the budget), and the largest two-sided distance of a new one;
             # ``triangles_tips_cut``: of those remade, the ones made again at their tip alone
-            # triangular cells thinner than half the tolerance, taken out (``lenses``): their
-            # neighbours now close over them; those kept had a side without one partner
+            # triangular cells thinner than half the tolerance, taken out (``lenses``): the patch
+            # across each one's rung closes over it, as one row through the lens's two sides or
+            # (``lenses_cut``) cut in two at its tip; those kept had no single such patch
             "lenses_collapsed": lenses["collapsed"],
+            "lenses_cut": lenses["cut"],
             "lenses_kept": lenses["left"],
             "lens_width_max": lenses["width_max"],
             "triangles_remade": quads["remade"],
@@ -184,23 +186,26 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
 def _collapse_lenses(result, in_groups, tol: Tolerances, diagonal: float) -> dict:
     """Thin triangular cells (every point within half the tolerance of the side facing the
     collapsed one) taken out of ``result`` in place, one input shell or solid at a time
-    (``lenses.collapse_lenses``): the patch across each one's rung is cut in two, which take the
-    lens's sides, and each face's largest move is returned for its I4 measure (``per_face``), the
-    lens's own width included for its face."""
+    (``lenses.collapse_lenses``): the patch across each one's rung takes the lens's two sides,
+    as one row or cut in two, and each face's largest move is returned for its I4 measure
+    (``per_face``), the lens's own width included for its face."""
     from dataclasses import replace
 
     from .lenses import collapse_lenses
     from .topology import JOIN_REL
 
-    info = {"collapsed": 0, "left": 0, "width_max": 0.0, "per_face": {}}
+    info = {"collapsed": 0, "cut": 0, "left": 0, "width_max": 0.0, "per_face": {}}
     for faces, _, _ in in_groups:
         items = [(result.faces[i], j) for i in faces for j in range(len(result.faces[i].patches))]
+        # a rung that takes the lens's two sides as one row must hold them to a tenth of I2's gap
         done = collapse_lenses([(fr.patches[j].ctrl, fr.patches[j].rational) for fr, j in items],
-                               JOIN_REL * diagonal, 0.5 * tol.approx_rel * diagonal, tol.max_degree)
+                               JOIN_REL * diagonal, 0.5 * tol.approx_rel * diagonal, tol.max_degree,
+                               exact=0.1 * tol.watertight_rel * diagonal)
         info["left"] += done.left
         if not done.collapsed:
             continue
         info["collapsed"] += done.collapsed
+        info["cut"] += done.cut
         info["width_max"] = max(info["width_max"], done.width_max)
         dropped: dict[int, set[int]] = {}
         added: dict[int, list] = {}
