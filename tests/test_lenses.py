@@ -147,3 +147,26 @@ def test_a_lens_with_a_kink_at_its_tip_is_cut_out_instead():
     nets = _scene(1e-5)  # two straight sides: one row cannot hold both
     done = collapse_lenses(nets, 1e-9, width=1e-4, exact=1e-13)
     assert done.collapsed == 1 and done.cut == 1 and done.parent == {4: 3}
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), degree=st.integers(1, 9), split=st.floats(0.15, 0.85),
+       up=st.integers(0, 4))
+def test_joined_gives_back_the_polynomial_its_two_pieces_came_from(seed, degree, split, up):
+    """Two pieces of one polynomial curve (each possibly elevated) are joined into that curve."""
+    from watertight_cli.core.bezier import curve_segment, elevate_curve
+    from watertight_cli.lenses import _joined
+
+    K = np.random.default_rng(seed).normal(size=(degree + 1, 3))
+    first, second = curve_segment(K, 0.0, split), elevate_curve(curve_segment(K, split, 1.0), up)
+    row = _joined(first, second, 1e-11, 25)
+    assert row is not None and len(row) - 1 <= degree
+    assert np.abs(elevate_curve(row, degree - (len(row) - 1)) - K).max() <= 1e-9
+
+
+def test_joined_refuses_pieces_that_meet_at_a_kink():
+    from watertight_cli.lenses import _joined
+
+    first = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    second = np.array([[1.0, 0.0, 0.0], [2.0, 1e-6, 0.0]])
+    assert _joined(first, second, 1e-11, 25) is None

@@ -262,30 +262,37 @@ def _dropped(out: Collapsed, k: int, far: float) -> None:
     out.width_max = max(out.width_max, far)
 
 
-#: samples per piece of ``_joined``'s fit (per degree of the higher piece, at least)
-_JOIN_SAMPLES = 3
+#: samples per piece of ``_joined``'s fit, per control point of the higher piece
+_JOIN_SAMPLES = 4
 
 
 def _joined(first: np.ndarray, second: np.ndarray, exact: float, max_degree: int) -> np.ndarray | None:
     """One Bezier row through ``first`` (B -> A) and then ``second`` (A -> C) when the two are
     pieces of one polynomial (a lens's two sides are pieces of its edge's one curve unless a knot
-    of it lies at A): the lowest degree whose least-squares fit comes within ``exact`` of both,
-    its ends B and C exactly; None when none does up to ``max_degree``. The pieces' parameter
-    lengths are in the ratio of their speeds at A, where one polynomial runs on at one speed."""
+    of it lies at A): the lowest degree, up to the pieces' own (a piece of a polynomial has its
+    degree) and ``max_degree``, whose least-squares fit comes within ``exact`` of both, on the fit's
+    samples and between them; its ends B and C exactly. None when none does. The pieces'
+    parameter lengths are in the ratio of their speeds at A, where one polynomial runs on at one
+    speed."""
     v1 = (len(first) - 1) * (first[-1] - first[-2])
     v2 = (len(second) - 1) * (second[1] - second[0])
     n1, n2 = float(np.linalg.norm(v1)), float(np.linalg.norm(v2))
     if n1 == 0.0 or n2 == 0.0 or float(v1 @ v2) < (1.0 - 1e-9) * n1 * n2:
         return None
     lam = n1 / (n1 + n2)
-    m = _JOIN_SAMPLES * max(len(first), len(second), 4)
-    s = np.linspace(0.0, 1.0, m)
-    t = np.concatenate([lam * s, lam + (1.0 - lam) * s[1:]])
-    pts = np.concatenate([curve_eval(first, s), curve_eval(second, s[1:])])
-    for d in range(1, max_degree + 1):
-        B = basis(d, t)
-        row = np.linalg.lstsq(B, pts, rcond=None)[0]
+    top = min(max(len(first), len(second)) - 1, max_degree)
+    s = np.linspace(0.0, 1.0, _JOIN_SAMPLES * (top + 1))
+    mid = 0.5 * (s[:-1] + s[1:])
+
+    def along(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = np.concatenate([lam * x, lam + (1.0 - lam) * x])
+        return t, np.concatenate([curve_eval(first, x), curve_eval(second, x)])
+
+    (t, pts), (tc, check) = along(s), along(mid)
+    for d in range(1, top + 1):
+        row = np.linalg.lstsq(basis(d, t), pts, rcond=None)[0]
         row[0], row[-1] = first[0], second[-1]
-        if float(np.linalg.norm(B @ row - pts, axis=1).max()) <= exact:
+        if max(float(np.linalg.norm(basis(d, t) @ row - pts, axis=1).max()),
+               float(np.linalg.norm(basis(d, tc) @ row - check, axis=1).max())) <= exact:
             return row
     return None
