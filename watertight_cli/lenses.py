@@ -50,11 +50,10 @@ from .core.bezier import (
     surface_split_v,
 )
 from .core.triangle import collapsed_side
-from .topology import project
+from .topology import SIDE_ROWS, project
 
 #: the four sides of a net as (index of the row, the axis it runs along)
-_SIDES = {"bottom": ((slice(None), 0), 0), "right": ((-1, slice(None)), 1),
-          "top": ((slice(None), -1), 0), "left": ((0, slice(None)), 1)}
+_SIDES = {name: (SIDE_ROWS[name][0], 0 if name in ("bottom", "top") else 1) for name in SIDE_ROWS}
 _CHECK = np.array([0.25, 0.5, 0.75])  # where a partner side is compared with a side
 _GRID = 9  # samples per direction of a lens checked against its rung
 #: a piece of the rung shorter than this (x the lens's width) would make a needle of its neighbour
@@ -127,11 +126,6 @@ class _Index:
                     if float(np.linalg.norm(got - want, axis=1).max()) <= 10.0 * self.eps:
                         out.append((q, name, rev))
         return out
-
-
-def _box(net: tuple[np.ndarray, bool]) -> np.ndarray:
-    pts = _xyz(net).reshape(-1, 3)
-    return np.stack([pts.min(axis=0), pts.max(axis=0)])
 
 
 def _change(old: np.ndarray, new: np.ndarray) -> float:
@@ -222,9 +216,10 @@ def _collapse(out: Collapsed, k: int, found, eps: float, width: float, max_degre
     joined = _joined(bottom[::-1], top, exact, max_degree) if exact > 0.0 else None
     if joined is not None:
         whole = _with_side(ctrl, name, joined[::-1] if rev else joined, max_degree)
-        if whole is not None and _change(ctrl, whole) <= width:
+        move = _change(ctrl, whole) if whole is not None else np.inf
+        if move <= width:
             out.nets[q] = (whole, False)
-            out.moved[q] = out.moved.get(q, 0.0) + _change(ctrl, whole)
+            out.moved[q] = out.moved.get(q, 0.0) + move
             _dropped(out, k, far)
             return True
     tau = float(project(_cart(rung), A[None])[0][0])
@@ -290,9 +285,10 @@ def _joined(first: np.ndarray, second: np.ndarray, exact: float, max_degree: int
 
     (t, pts), (tc, check) = along(s), along(mid)
     for d in range(1, top + 1):
-        row = np.linalg.lstsq(basis(d, t), pts, rcond=None)[0]
+        B = basis(d, t)
+        row = np.linalg.lstsq(B, pts, rcond=None)[0]
         row[0], row[-1] = first[0], second[-1]
-        if max(float(np.linalg.norm(basis(d, t) @ row - pts, axis=1).max()),
+        if max(float(np.linalg.norm(B @ row - pts, axis=1).max()),
                float(np.linalg.norm(basis(d, tc) @ row - check, axis=1).max())) <= exact:
             return row
     return None

@@ -137,9 +137,6 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "folds_dropped": joined["folds"],
             "lenses_remade": joined["lenses"],
             "fold_width_max": joined["fold_width_max"],
-            # patches with one collapsed side, made again with four (``core.triangle``), those
-            # kept (no fit within the budget), and the largest two-sided distance of a new one;
-            # ``triangles_tips_cut``: of those remade, the ones made again at their tip alone
             # triangular cells thinner than half the tolerance, taken out (``lenses``): the patch
             # across each one's rung closes over it, as one row through the lens's two sides or
             # (``lenses_cut``) cut in two at its tip; those kept had no single such patch
@@ -147,6 +144,9 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "lenses_cut": lenses["cut"],
             "lenses_kept": lenses["left"],
             "lens_width_max": lenses["width_max"],
+            # patches with one collapsed side, made again with four (``core.triangle``), those
+            # kept (no fit within the budget), and the largest two-sided distance of a new one;
+            # ``triangles_tips_cut``: of those remade, the ones made again at their tip alone
             "triangles_remade": quads["remade"],
             "triangles_tips_cut": quads["tips"],
             "triangles_kept": quads["kept"],
@@ -196,9 +196,10 @@ def _collapse_lenses(result, in_groups, tol: Tolerances, diagonal: float) -> dic
 
     info = {"collapsed": 0, "cut": 0, "left": 0, "width_max": 0.0, "per_face": {}}
     for faces, _, _ in in_groups:
-        items = [(result.faces[i], j) for i in faces for j in range(len(result.faces[i].patches))]
+        items = [(i, j) for i in faces for j in range(len(result.faces[i].patches))]
         # a rung that takes the lens's two sides as one row must hold them to a tenth of I2's gap
-        done = collapse_lenses([(fr.patches[j].ctrl, fr.patches[j].rational) for fr, j in items],
+        done = collapse_lenses([(result.faces[i].patches[j].ctrl, result.faces[i].patches[j].rational)
+                                for i, j in items],
                                JOIN_REL * diagonal, 0.5 * tol.approx_rel * diagonal, tol.max_degree,
                                exact=0.1 * tol.watertight_rel * diagonal)
         info["left"] += done.left
@@ -210,19 +211,20 @@ def _collapse_lenses(result, in_groups, tol: Tolerances, diagonal: float) -> dic
         dropped: dict[int, set[int]] = {}
         added: dict[int, list] = {}
         for k, moved in done.moved.items():
-            fr, j = items[k]
-            info["per_face"][fr.face] = max(info["per_face"].get(fr.face, 0.0), moved)
+            i, j = items[k]
+            face = result.faces[i].face
+            info["per_face"][face] = max(info["per_face"].get(face, 0.0), moved)
             if done.nets[k] is None:
-                dropped.setdefault(id(fr), set()).add(j)
+                dropped.setdefault(i, set()).add(j)
             else:
-                fr.patches[j].ctrl = done.nets[k][0]
+                result.faces[i].patches[j].ctrl = done.nets[k][0]
         for k, q in sorted(done.parent.items()):  # halves of a patch cut at a lens's tip
-            fr, j = items[q]
-            added.setdefault(id(fr), []).append(replace(fr.patches[j], ctrl=done.nets[k][0]))
+            i, j = items[q]
+            added.setdefault(i, []).append(replace(result.faces[i].patches[j], ctrl=done.nets[k][0]))
         for i in faces:
             fr = result.faces[i]
-            fr.patches = [p for j, p in enumerate(fr.patches) if j not in dropped.get(id(fr), ())]
-            fr.patches += added.get(id(fr), [])
+            fr.patches = [p for j, p in enumerate(fr.patches) if j not in dropped.get(i, ())]
+            fr.patches += added.get(i, [])
     return info
 
 
