@@ -46,3 +46,37 @@ def test_a_strip_beside_a_kept_triangle_is_not_split():
     wedge[1] = wedge[1, 0]  # its far side collapsed to one point: a triangle
     pts, info, _ = _run(None, None, wedge)
     assert info["split"] == 0 and info["left_by_triangles"] == 1 and len(pts) == 0
+
+
+def _flat(length: float, width: float) -> np.ndarray:
+    """A flat strip ``length`` long along x and ``width`` wide in y, bidegree (1, 3)."""
+    x = np.linspace(0.0, length, 4)
+    return np.stack([np.stack([x, np.full(4, y), np.zeros(4)], axis=1) for y in (0.0, width)])
+
+
+def test_a_sliver_is_split_at_twenty_times_the_ratio():
+    """A strip narrower than thin_rel (5e-6 on a diagonal of 10) but wider than sliver_rel (1e-7)
+    is split too, into pieces up to 20 x 250 widths: the kernel's mesher left a hole in such a
+    sliver of bug33398 whose one long side held many vertices and the other none."""
+    width, length = 2e-6, 0.1
+    sliver = _flat(length, width)
+    pts, info = _split_slender([[(sliver, False, None)]], Tolerances(), 10.0)
+    assert info["split"] == 1 and info["left_by_triangles"] == 0
+    for y in (0.0, width):
+        x = np.sort(np.concatenate([[0.0, length], pts[np.isclose(pts[:, 1], y, rtol=0, atol=1e-12), 0]]))
+        assert len(x) > 2
+        assert np.diff(x).max() <= 5000 * width * (1 + 1e-9)  # 20 x --max-aspect
+        assert np.diff(x).min() > 250 * width  # not at the ratio itself: 200 pieces a side
+    # the same stations on both sides
+    lo, hi = (np.sort(pts[np.isclose(pts[:, 1], y, rtol=0, atol=1e-12), 0]) for y in (0.0, width))
+    assert np.allclose(lo, hi, rtol=0, atol=1e-12)
+
+
+def test_a_strip_below_the_sliver_floor_is_not_split():
+    pts, info = _split_slender([[(_flat(0.1, 5e-8), False, None)]], Tolerances(), 10.0)
+    assert info["split"] == 0 and len(pts) == 0
+
+
+def test_inf_splits_no_sliver():
+    pts, info = _split_slender([[(_flat(0.1, 2e-6), False, None)]], Tolerances(slender_ratio=np.inf), 10.0)
+    assert info["split"] == 0 and len(pts) == 0

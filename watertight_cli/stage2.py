@@ -273,6 +273,9 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
     return nets, info
 
 
+_SLIVER_RATIO = 20  # slivers' long sides: pieces up to this times --max-aspect widths
+
+
 def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.ndarray, dict]:
     """Points that split the long sides of every patch (of ``_untriangle``'s nets) more than
     ``tol.slender_ratio`` times longer than wide into pieces no longer than that ratio times the
@@ -282,7 +285,14 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
     and exact. Remade triangles take no points, and no point goes on a triangle's side (remade or
     kept with its collapsed side: the build may put a remade triangle back, and a needle or wedge
     took no T-vertex along its sides when strips were cut into pieces: wing_fuselage, six free
-    edges); slivers narrower than ``tol.thin_rel`` take none either (I5 counts those)."""
+    edges).
+
+    Slivers (narrower than ``tol.thin_rel`` somewhere, wider than ``tol.sliver_rel``; I5 counts
+    them) are split too, but only into pieces up to ``_SLIVER_RATIO`` times the ratio: at the ratio
+    itself bug33398's 378 slivers took 135k vertices (+50 % time, a 516 MB file instead of 345),
+    while what they need is a few: the kernel's mesher left a hole in a sliver 13.8 long and
+    5.3e-5 wide whose one long side held 45 vertices and the other none (six free mesh edges; at
+    20 times the ratio it took 53 stations a side, +7 % vertices, and its mesh closed)."""
     from .core.slender import slender_axes, split_along
     from .core.triangle import collapsed_side
     from .topology import JOIN_REL
@@ -299,12 +309,22 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
     for k, (c, r) in enumerate(plain):
         shapes.setdefault((c.shape, r), []).append(k)
     axes = np.full(len(plain), -1)
+    sliver = np.zeros(len(plain), dtype=bool)
+    thin_ratio, thin_floor = _SLIVER_RATIO * tol.slender_ratio, tol.sliver_rel * diagonal
     for (_, r), ks in shapes.items():
-        axes[ks] = slender_axes(np.stack([plain[k][0] for k in ks]), r, tol.slender_ratio, floor)
+        ks = np.asarray(ks)
+        stack = np.stack([plain[k][0] for k in ks])
+        axes[ks] = slender_axes(stack, r, tol.slender_ratio, floor)
+        # a patch that is no strip above the floor but one above the sliver floor is a sliver
+        thin = slender_axes(stack, r, thin_ratio, thin_floor)
+        pick = (axes[ks] < 0) & (thin >= 0)
+        axes[ks[pick]] = thin[pick]
+        sliver[ks[pick]] = True
     found = []
     for k in np.flatnonzero(axes >= 0):
         ctrl, rational = plain[k]
-        made = split_along(ctrl, rational, int(axes[k]), tol.slender_ratio, floor, snap, eps)
+        ratio, low = (thin_ratio, thin_floor) if sliver[k] else (tol.slender_ratio, floor)
+        made = split_along(ctrl, rational, int(axes[k]), ratio, low, snap, eps)
         if made is None:
             continue
         pts = made.points
