@@ -55,9 +55,9 @@ def _flat(length: float, width: float) -> np.ndarray:
 
 
 def test_a_sliver_is_split_at_twenty_times_the_ratio():
-    """A strip narrower than thin_rel (5e-6 on a diagonal of 10) but wider than sliver_rel (1e-7)
-    is split too, into pieces up to 20 x 250 widths: the kernel's mesher left a hole in such a
-    sliver of bug33398 whose one long side held many vertices and the other none."""
+    """A strip narrower than thin_rel (5e-6 on a diagonal of 10) but wider than ten sliver floors
+    (sliver_rel: 1e-7) is split too, into pieces up to 20 x 250 widths: the kernel's mesher left a
+    hole in such a sliver of bug33398 whose one long side held many vertices and the other none."""
     width, length = 2e-6, 0.1
     sliver = _flat(length, width)
     pts, info = _split_slender([[(sliver, False, None)]], Tolerances(), 10.0)
@@ -72,9 +72,10 @@ def test_a_sliver_is_split_at_twenty_times_the_ratio():
     assert np.allclose(lo, hi, rtol=0, atol=1e-12)
 
 
-def test_a_strip_below_the_sliver_floor_is_not_split():
-    pts, info = _split_slender([[(_flat(0.1, 5e-8), False, None)]], Tolerances(), 10.0)
-    assert info["split"] == 0 and len(pts) == 0
+def test_a_sliver_within_ten_sliver_floors_is_not_split():
+    for width in (5e-8, 5e-7):  # below the sliver floor (1e-7), below ten of them
+        pts, info = _split_slender([[(_flat(0.1, width), False, None)]], Tolerances(), 10.0)
+        assert info["split"] == 0 and len(pts) == 0
 
 
 def test_inf_splits_no_sliver():

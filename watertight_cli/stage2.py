@@ -274,6 +274,7 @@ def _untriangle(result, tol: Tolerances, diagonal: float) -> tuple[list, dict]:
 
 
 _SLIVER_RATIO = 20  # slivers' long sides: pieces up to this times --max-aspect widths
+_SLIVER_FLOOR = 10  # and only slivers wider than this many sliver floors (Tolerances.sliver_rel)
 
 
 def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.ndarray, dict]:
@@ -287,12 +288,14 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
     took no T-vertex along its sides when strips were cut into pieces: wing_fuselage, six free
     edges).
 
-    Slivers (narrower than ``tol.thin_rel`` somewhere, wider than ``tol.sliver_rel``; I5 counts
-    them) are split too, but only into pieces up to ``_SLIVER_RATIO`` times the ratio: at the ratio
-    itself bug33398's 378 slivers took 135k vertices (+50 % time, a 516 MB file instead of 345),
-    while what they need is a few: the kernel's mesher left a hole in a sliver 13.8 long and
-    5.3e-5 wide whose one long side held 45 vertices and the other none (six free mesh edges; at
-    20 times the ratio it took 53 stations a side, +7 % vertices, and its mesh closed)."""
+    Slivers (narrower than ``tol.thin_rel`` somewhere; I5 counts them) are split too, but only into
+    pieces up to ``_SLIVER_RATIO`` times the ratio, and only where they are wider than
+    ``_SLIVER_FLOOR`` times ``tol.sliver_rel`` (the read-back's weld). The kernel's mesher left a
+    hole in a sliver of bug33398 13.8 long and 5.3e-5 wide whose one long side held 45 vertices
+    and the other none (six free mesh edges); split, its mesh closed. At the ratio itself that
+    file's slivers took 135k vertices (+50 % time, a 516 MB file instead of 345) where 7k do;
+    down to the weld itself, ec_turbine's and trj8's meshes had two more collapsed triangles each
+    and the wing 35 % more split vertices."""
     from .core.slender import slender_axes, split_along
     from .core.triangle import collapsed_side
     from .topology import JOIN_REL
@@ -310,7 +313,7 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
         shapes.setdefault((c.shape, r), []).append(k)
     axes = np.full(len(plain), -1)
     sliver = np.zeros(len(plain), dtype=bool)
-    thin_ratio, thin_floor = _SLIVER_RATIO * tol.slender_ratio, tol.sliver_rel * diagonal
+    thin_ratio, thin_floor = _SLIVER_RATIO * tol.slender_ratio, _SLIVER_FLOOR * tol.sliver_rel * diagonal
     for (_, r), ks in shapes.items():
         ks = np.asarray(ks)
         stack = np.stack([plain[k][0] for k in ks])
