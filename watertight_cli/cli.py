@@ -271,8 +271,8 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
                    "strips thousands of times longer than wide where knot lines or trimming curves "
                    "run close together; the long sides of such a strip, and its neighbours' sides "
                    "there, are split into shorter edges at the same points (the patches stay as "
-                   "they are); slivers narrower than the tolerance resolves at 20 x RATIO. 'inf' "
-                   "leaves them unsplit.")
+                   "they are). Slivers (narrower than 5e-7 of the diagonal) are split at 20 x "
+                   "RATIO. 'inf' leaves them unsplit.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the conversion report as JSON on stdout (batch: the --report document).")
 @click.option("--overwrite/--no-overwrite", default=None,
