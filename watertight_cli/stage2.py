@@ -296,7 +296,7 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
     file's slivers took 135k vertices (+50 % time, a 516 MB file instead of 345) where 7k do;
     down to the weld itself, ec_turbine's and trj8's meshes had two more collapsed triangles each
     and the wing 35 % more split vertices."""
-    from .core.slender import slender_axes, split_along
+    from .core.slender import slender_axes, split_along, strip_measures
     from .core.triangle import collapsed_side
     from .topology import JOIN_REL
 
@@ -316,10 +316,10 @@ def _split_slender(nets: list, tol: Tolerances, diagonal: float) -> tuple[np.nda
     thin_ratio, thin_floor = _SLIVER_RATIO * tol.slender_ratio, _SLIVER_FLOOR * tol.sliver_rel * diagonal
     for (_, r), ks in shapes.items():
         ks = np.asarray(ks)
-        stack = np.stack([plain[k][0] for k in ks])
-        axes[ks] = slender_axes(stack, r, tol.slender_ratio, floor)
+        seen = strip_measures(np.stack([plain[k][0] for k in ks]), r)
+        axes[ks] = slender_axes(None, r, tol.slender_ratio, floor, seen)
         # a patch that is no strip above the floor but one above the sliver floor is a sliver
-        thin = slender_axes(stack, r, thin_ratio, thin_floor)
+        thin = slender_axes(None, r, thin_ratio, thin_floor, seen)
         pick = (axes[ks] < 0) & (thin >= 0)
         axes[ks[pick]] = thin[pick]
         sliver[ks[pick]] = True

@@ -25,7 +25,7 @@ import numpy as np
 from .bernstein import basis
 from .bezier import curve_eval, dehomogenize
 
-__all__ = ["SlenderSplit", "slender_axes", "slender_axis", "split_along", "split_points"]
+__all__ = ["SlenderSplit", "slender_axes", "slender_axis", "split_along", "split_points", "strip_measures"]
 
 _COARSE = 17  # samples per side for the first look; most patches stop there
 _FINE_MAX = 4097  # most samples per side for placing the stations
@@ -135,14 +135,14 @@ def slender_axis(ctrl: np.ndarray, rational: bool, ratio: float, floor: float) -
     return None if best is None else best[0]
 
 
-def slender_axes(ctrls: np.ndarray, rational: bool, ratio: float, floor: float) -> np.ndarray:
-    """``slender_axis`` for a stack of nets of one shape, ctrls (P, m+1, n+1, d), in one pass of
-    array operations (the first look at every patch of a model): (P,) ints, the axis, or -1 where
-    the patch is not slender."""
+def strip_measures(ctrls: np.ndarray, rational: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first look at a stack of nets of one shape, ctrls (P, m+1, n+1, d), in one pass of array
+    operations, per patch and axis (P, 2): the narrowest width between the two sides that run
+    along that axis, the longer of them, and whether neither is less than ``_SIDES`` of the other
+    (a strip, not a triangle or a wedge). ``slender_axes`` reads them."""
     ctrls = np.asarray(ctrls, dtype=float)
     P = len(ctrls)
-    out = np.full(P, -1)
-    best = np.zeros(P)
+    narrow, longest, balanced = np.zeros((P, 2)), np.zeros((P, 2)), np.zeros((P, 2), dtype=bool)
     s = np.linspace(0.0, 1.0, _COARSE)
     for axis in (0, 1):
         net = ctrls if axis == 1 else np.swapaxes(ctrls, 1, 2)
@@ -154,10 +154,23 @@ def slender_axes(ctrls: np.ndarray, rational: bool, ratio: float, floor: float) 
         for i0 in range(0, P, 512):  # chunks keep the (chunk, k, k, 3) temporaries small
             c = slice(i0, i0 + 512)
             width[c] = np.minimum(_to_polylines(lo[c], hi[c])[0], _to_polylines(hi[c], lo[c])[0])
-        narrow = width.min(axis=1)
+        narrow[:, axis] = width.min(axis=1)
         lengths = np.linalg.norm(np.diff(pts, axis=2), axis=3).sum(axis=2)  # (P, 2)
-        strip = (narrow > floor) & (lengths.min(axis=1) >= _SIDES * lengths.max(axis=1))
-        aspect = np.where(strip, lengths.max(axis=1) / np.where(strip, narrow, 1.0), 0.0)
+        longest[:, axis] = lengths.max(axis=1)
+        balanced[:, axis] = lengths.min(axis=1) >= _SIDES * lengths.max(axis=1)
+    return narrow, longest, balanced
+
+
+def slender_axes(ctrls, rational: bool, ratio: float, floor: float, measures=None) -> np.ndarray:
+    """``slender_axis`` for a stack of nets of one shape, ctrls (P, m+1, n+1, d): (P,) ints, the
+    axis, or -1 where the patch is not slender. ``measures``: the stack's ``strip_measures``, when
+    the caller has them already (asking with another ratio and floor costs no second look)."""
+    narrow, longest, balanced = strip_measures(ctrls, rational) if measures is None else measures
+    out = np.full(len(narrow), -1)
+    best = np.zeros(len(narrow))
+    for axis in (0, 1):
+        strip = (narrow[:, axis] > floor) & balanced[:, axis]
+        aspect = np.where(strip, longest[:, axis] / np.where(strip, narrow[:, axis], 1.0), 0.0)
         take = strip & (aspect > ratio) & ((out < 0) | (aspect > best))
         out[take], best[take] = axis, aspect[take]
     return out
