@@ -465,3 +465,83 @@ def test_projection_bases_share_powers_to_the_bit(n, seed, count):
     s = np.r_[0.0, 1.0, np.random.default_rng(seed).random(count)][-count:]
     for j, got in zip((n, n - 1, n - 2), _bases3(n, s), strict=True):
         assert np.array_equal(got, _basis(j, s))
+
+
+def _spike_nets():
+    """A patch P in z = 0 whose bottom, a quadratic from (0, 0.5) to C = (1, 0), arrives at C
+    tangent to P's straight right side x = 1 (occt__trj8 face 2009: a hole's circle at its extreme
+    point and the slab line through it); two patches hang below the bottom, split at V', 5e-4
+    from C, where the curve is 2.5e-7 from x = 1; a square R beyond x = 1 shares P's right side."""
+    from watertight_cli.core.bezier import curve_segment
+
+    bottom = np.array([[0, 0.5, 0], [1, 0.5, 0], [1, 0, 0]], float)
+    top = np.array([[0, 1, 0], [0.5, 1, 0], [1, 1, 0]], float)
+    s1 = 1.0 - 5e-4
+
+    def hanging(seg):
+        return np.stack([seg - [0, 0, 1], seg], axis=1)
+
+    square = np.array([[[1, -1, 0], [1, 1, 0]], [[2, -1, 0], [2, 1, 0]]], float)
+    return [(np.stack([bottom, top], axis=1), False), (hanging(curve_segment(bottom, s1, 1.0)), False),
+            (hanging(curve_segment(bottom, 0.0, s1)), False), (square, False)]
+
+
+def _spikes(topo, eps):
+    """Corners where a wire's pieces before and after end within eps of each other."""
+    from watertight_cli.topology import _walk, forward
+
+    out = []
+    for p, wire in enumerate(topo.wires):
+        seq = list(_walk(wire))
+        for i in range(len(seq)):
+            (sa, _, ea, ka), (sb, nb, eb, kb) = seq[i - 1], seq[i]
+            if sa == sb or nb != 0:
+                continue
+            a, b = topo.edges[ea], topo.edges[eb]
+            far_a = a.va if forward(a.members[ka]) else a.vb
+            far_b = b.vb if forward(b.members[kb]) else b.va
+            if np.linalg.norm(topo.vertices[far_a] - topo.vertices[far_b]) <= eps:
+                out.append((p, sa, sb))
+    return out
+
+
+def test_a_vertex_near_a_tangential_corner_leaves_the_side_that_does_not_need_it():
+    import watertight_cli.topology as T
+
+    nets, eps = _spike_nets(), 1e-6
+    kept = T.unspike
+    try:
+        T.unspike = lambda topo, eps: 0
+        before = connect(nets, eps)
+    finally:
+        T.unspike = kept
+    after = connect(nets, eps)
+    assert _spikes(before, eps) == [(0, "bottom", "right")]  # the defect, as it was
+    assert _spikes(after, eps) == []
+    right = after.wires[0]["right"]
+    assert len(right) == 1  # C to (1, 1) in one edge, shared with the square
+    e = after.edges[right[0][0]]
+    assert sorted((m.patch, m.side) for m in e.members) == [(0, "right"), (3, "left")]
+    assert len(after.wires[0]["bottom"]) == 2  # V' stays where the hanging patches meet
+    assert after.free_edges == before.free_edges
+    assert len(after.edges) == len(before.edges) - 1
+
+
+def test_a_taken_out_vertex_leaves_a_face_the_mesher_can_fill():
+    """Built and meshed, the spike's patch had two mesh nodes at one point; without it, none."""
+    from watertight_cli.occ.build import joined_faces
+    from watertight_cli.occ.mesh import triangulate
+
+    nets, eps = _spike_nets(), 1e-6
+    topo = connect(nets, eps)
+    faces = joined_faces([(c, r, False) for c, r in nets], topo)
+    from OCP.BRep import BRep_Builder
+    from OCP.TopoDS import TopoDS_Compound
+
+    b, comp = BRep_Builder(), TopoDS_Compound()
+    b.MakeCompound(comp)
+    for f in faces:
+        b.Add(comp, f)
+    pts, tris = triangulate(comp, copy=False)[0]
+    sides = np.linalg.norm(pts[tris] - pts[np.roll(tris, 1, axis=1)], axis=2)
+    assert len(tris) and sides.min() > 1e-9

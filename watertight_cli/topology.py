@@ -377,7 +377,112 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float, extra: np.ndarray |
         drop |= more
     if extra is not None and len(extra) and state:
         split(topo, state["rows"], np.asarray(extra, dtype=float).reshape(-1, 3), eps)
+    unspike(topo, eps)
     return topo
+
+
+def unspike(topo: Topology, eps: float) -> int:
+    """Take out, in place, the vertices that make a patch's wire run out along one curve and back
+    along another within ``eps`` of it (a spike at a corner): where a side leaves a corner nearly
+    tangent to the other side there (a hole's circle at its extreme point in u, and the slab line
+    through it), a vertex of the curve's other face stands within ``eps`` of both sides near the
+    corner and became a vertex of both (``_unpinch`` then gives each fan its own copy at one
+    point). The wire then goes from that vertex to the corner along one side and back to a copy
+    of it along the other: a piece of the face of no width, which the kernel's mesher fills with
+    triangles whose corners meet (occt__trj8 face 2009: 0.00126 long, at the hole of radius 3.81
+    whose circle stays within 1.5e-7 of the slab line there; gmsh__Block, gmsh__917_fusee). The
+    vertex goes out of the side where nothing else needs it: it is the end of two edges with the
+    same members, which become one edge (every member's map affine, as before). Returns how many
+    vertices were taken out."""
+    V = topo.vertices
+    uses = np.zeros(len(V), dtype=int)
+    for e in topo.edges:
+        if not e.degenerate:
+            uses[e.va] += 1
+            uses[e.vb] += 1
+    gone: set[int] = set()
+    taken = 0
+    for wire in topo.wires:
+        seq = list(_walk(wire))
+        for i in range(len(seq)):
+            side_a, _, ea, ka = seq[i - 1]
+            side_b, nb, eb, kb = seq[i]
+            if side_a == side_b or nb != 0 or ea in gone or eb in gone:
+                continue
+            a, b = topo.edges[ea], topo.edges[eb]
+            if a.degenerate or b.degenerate:
+                continue
+            far_a = a.va if forward(a.members[ka]) else a.vb
+            far_b = b.vb if forward(b.members[kb]) else b.va
+            if far_a == far_b or np.linalg.norm(V[far_a] - V[far_b]) > eps:
+                continue
+            # the spike's far end: out of side b (past it along b), else out of side a
+            for v, e_id in ((far_b, eb), (far_a, ea)):
+                if uses[v] == 2 and _merge_at(topo, v, e_id, gone):
+                    taken += 1
+                    break
+    if gone:
+        _drop_edges(topo, gone)
+    return taken
+
+
+def _merge_at(topo: Topology, v: int, e_id: int, gone: set[int]) -> bool:
+    """Make edge ``e_id`` and the other edge at vertex ``v`` one edge, when both have the same
+    owner and the same members, each with an affine map that runs on across ``v``."""
+    e = topo.edges[e_id]
+    other = [j for j, f in enumerate(topo.edges)
+             if j != e_id and j not in gone and not f.degenerate and v in (f.va, f.vb)]
+    if len(other) != 1:
+        return False
+    f_id = other[0]
+    f = topo.edges[f_id]
+    if e.vb == v and f.va == v:
+        first, second = e, f
+    elif f.vb == v and e.va == v:
+        first, second = f, e
+    else:
+        return False
+    o1, o2 = first.owner, second.owner
+    if (o1.patch, o1.side) != (o2.patch, o2.side) or abs(first.t1 - second.t0) > 1e-12:
+        return False
+    pairs = []
+    for m in first.members:
+        n = [x for x in second.members if (x.patch, x.side) == (m.patch, m.side)]
+        if len(n) != 1 or m.w != 1.0 or n[0].w != 1.0 or m.smap is not None or n[0].smap is not None:
+            return False
+        n = n[0]
+        rate1 = (m.s1 - m.s0) / (first.t1 - first.t0)
+        rate2 = (n.s1 - n.s0) / (second.t1 - second.t0)
+        if abs(m.s1 - n.s0) > 1e-12 or abs(rate1 - rate2) > 1e-9 * max(abs(rate1), abs(rate2)):
+            return False
+        pairs.append((m, n))
+    if len(second.members) != len(pairs):
+        return False
+    merged = TopoEdge(first.va, second.vb, first.t0, second.t1,
+                      [Member(m.patch, m.side, m.s0, n.s1, 1.0, max(m.deviation, n.deviation))
+                       for m, n in pairs])
+    keep, drop = (e_id, f_id) if first is e else (f_id, e_id)
+    for k, m in enumerate(merged.members):
+        side = topo.wires[m.patch][m.side]
+        ids = [x for x, _ in side]
+        i, j = ids.index(keep), ids.index(drop)
+        side[min(i, j):max(i, j) + 1] = [(keep, k)]
+    topo.edges[keep] = merged
+    gone.add(drop)
+    return True
+
+
+def _drop_edges(topo: Topology, gone: set[int]) -> None:
+    """Remove edges that no wire uses any more, renumbering the wires' references."""
+    new_id, kept = {}, []
+    for j, e in enumerate(topo.edges):
+        if j not in gone:
+            new_id[j] = len(kept)
+            kept.append(e)
+    topo.edges = kept
+    for wire in topo.wires:
+        for side, segs in wire.items():
+            wire[side] = [(new_id[j], k) for j, k in segs]
 
 
 def split(topo: Topology, rows, pts: np.ndarray, eps: float) -> int:
