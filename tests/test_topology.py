@@ -518,6 +518,7 @@ def test_a_vertex_near_a_tangential_corner_leaves_the_side_that_does_not_need_it
     after = connect(nets, eps)
     assert _spikes(before, eps) == [(0, "bottom", "right")]  # the defect, as it was
     assert _spikes(after, eps) == []
+    assert (before.unspiked, after.unspiked) == (0, 1)
     right = after.wires[0]["right"]
     assert len(right) == 1  # C to (1, 1) in one edge, shared with the square
     e = after.edges[right[0][0]]

@@ -157,6 +157,9 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "slender_patches_split": slender["split"],
             "slender_split_vertices": slender["vertices"],
             "slender_left_by_triangles": slender["left_by_triangles"],
+            # vertices near a tangential corner taken out of the side that did not need them
+            # (``topology.unspike``): each was a spike of no width in its patch's wire
+            "spikes_taken_out": joined["spikes_taken_out"],
             "edge_deviation_max": joined["edge_deviation_max"],
             "valid": valid,
             "volume": vol_out,

@@ -100,6 +100,8 @@ class Topology:
     # side pieces added by ``split`` (a vertex put inside an edge splits the side of every member):
     # no T-vertices, as every face on the edge has the vertex
     split_pieces: int = 0
+    # vertices taken out of a side near a tangential corner (``unspike``)
+    unspiked: int = 0
 
     @property
     def free_edges(self) -> int:
@@ -377,7 +379,7 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float, extra: np.ndarray |
         drop |= more
     if extra is not None and len(extra) and state:
         split(topo, state["rows"], np.asarray(extra, dtype=float).reshape(-1, 3), eps)
-    unspike(topo, eps)
+    topo.unspiked = unspike(topo, eps)
     return topo
 
 

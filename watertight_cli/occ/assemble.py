@@ -94,7 +94,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     builder.MakeCompound(out)
     info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0, "t_vertices": 0,
             "edge_deviation_max": 0.0, "flat_patches": 0, "folds": 0, "lenses": 0, "fold_width_max": 0.0,
-            "triangles_reverted": 0, "degrees": [], "volume": 0.0}
+            "triangles_reverted": 0, "degrees": [], "volume": 0.0, "spikes_taken_out": 0}
     bodies: list[TopoDS_Shape | None] = [None] * len(groups)
     for g, (nets, solid) in enumerate(groups):
         if not nets:
@@ -145,6 +145,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
         free = topo.free_edges
         info["free_edges"] += free
         info["t_vertices"] += topo.t_vertices
+        info["spikes_taken_out"] += topo.unspiked
         info["edge_deviation_max"] = max([info["edge_deviation_max"]]
                                          + [m.deviation for e in topo.edges for m in e.members])
         shells, parts = [], topo.components()
