@@ -511,7 +511,7 @@ def test_a_vertex_near_a_tangential_corner_leaves_the_side_that_does_not_need_it
     nets, eps = _spike_nets(), 1e-6
     kept = T.unspike
     try:
-        T.unspike = lambda topo, eps: 0
+        T.unspike = lambda topo, eps, first_split=None: 0
         before = connect(nets, eps)
     finally:
         T.unspike = kept

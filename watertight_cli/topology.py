@@ -377,13 +377,14 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float, extra: np.ndarray |
         if not more:
             break
         drop |= more
+    first_split = len(topo.vertices)
     if extra is not None and len(extra) and state:
         split(topo, state["rows"], np.asarray(extra, dtype=float).reshape(-1, 3), eps)
-    topo.unspiked = unspike(topo, eps)
+    topo.unspiked = unspike(topo, eps, first_split)
     return topo
 
 
-def unspike(topo: Topology, eps: float) -> int:
+def unspike(topo: Topology, eps: float, first_split: int | None = None) -> int:
     """Take out, in place, the vertices that make a patch's wire run out along one curve and back
     along another within ``eps`` of it (a spike at a corner): where a side leaves a corner nearly
     tangent to the other side there (a hole's circle at its extreme point in u, and the slab line
@@ -394,8 +395,9 @@ def unspike(topo: Topology, eps: float) -> int:
     triangles whose corners meet (occt__trj8 face 2009: 0.00126 long, at the hole of radius 3.81
     whose circle stays within 1.5e-7 of the slab line there; gmsh__Block, gmsh__917_fusee). The
     vertex goes out of the side where nothing else needs it: it is the end of two edges with the
-    same members, which become one edge (every member's map affine, as before). Returns how many
-    vertices were taken out."""
+    same members, which become one edge (every member's map affine, as before). Vertices from
+    ``first_split`` on were put in by ``split`` and stay. Returns how many vertices were taken
+    out."""
     V = topo.vertices
     uses = np.zeros(len(V), dtype=int)
     for e in topo.edges:
@@ -420,6 +422,8 @@ def unspike(topo: Topology, eps: float) -> int:
                 continue
             # the spike's far end: out of side b (past it along b), else out of side a
             for v, e_id in ((far_b, eb), (far_a, ea)):
+                if first_split is not None and v >= first_split:
+                    continue
                 if uses[v] == 2 and _merge_at(topo, v, e_id, gone):
                     taken += 1
                     break
@@ -447,6 +451,8 @@ def _merge_at(topo: Topology, v: int, e_id: int, gone: set[int]) -> bool:
     o1, o2 = first.owner, second.owner
     if (o1.patch, o1.side) != (o2.patch, o2.side) or abs(first.t1 - second.t0) > 1e-12:
         return False
+    if not (first.t1 > first.t0 and second.t1 > second.t0):
+        return False
     pairs = []
     for m in first.members:
         n = [x for x in second.members if (x.patch, x.side) == (m.patch, m.side)]
@@ -464,11 +470,14 @@ def _merge_at(topo: Topology, v: int, e_id: int, gone: set[int]) -> bool:
                       [Member(m.patch, m.side, m.s0, n.s1, 1.0, max(m.deviation, n.deviation))
                        for m, n in pairs])
     keep, drop = (e_id, f_id) if first is e else (f_id, e_id)
-    for k, m in enumerate(merged.members):
-        side = topo.wires[m.patch][m.side]
-        ids = [x for x, _ in side]
-        i, j = ids.index(keep), ids.index(drop)
-        side[min(i, j):max(i, j) + 1] = [(keep, k)]
+    at = []
+    for m in merged.members:  # the two pieces stand side by side on every member's side
+        ids = [x for x, _ in topo.wires[m.patch][m.side]]
+        if keep not in ids or drop not in ids or abs(ids.index(keep) - ids.index(drop)) != 1:
+            return False
+        at.append(min(ids.index(keep), ids.index(drop)))
+    for k, (m, i) in enumerate(zip(merged.members, at, strict=True)):
+        topo.wires[m.patch][m.side][i:i + 2] = [(keep, k)]
     topo.edges[keep] = merged
     gone.add(drop)
     return True
