@@ -546,3 +546,76 @@ def test_a_taken_out_vertex_leaves_a_face_the_mesher_can_fill():
     pts, tris = triangulate(comp, copy=False)[0]
     sides = np.linalg.norm(pts[tris] - pts[np.roll(tris, 1, axis=1)], axis=2)
     assert len(tris) and sides.min() > 1e-9
+
+
+def _checker_misses(topo, nets):
+    """Samples that a check sampling every edge a fixed number of times (15 looked up, 272 looked
+    among, per face side, as the independent checker does) pairs with another edge than its own:
+    for each shared edge and each face on it, its inner samples, and the nearest sample of another
+    face."""
+    from scipy.spatial import cKDTree
+
+    from watertight_cli.topology import _evaluate, side_row
+
+    dense, dense_edge, dense_face, coarse = [], [], [], []
+    for e_id, e in enumerate(topo.edges):
+        if e.degenerate:
+            continue
+        o = e.owner
+        row = side_row(nets[o.patch][0], nets[o.patch][1], o.side)
+        for m in e.members:
+            dense.append(_evaluate(row, e.t0 + np.linspace(0, 1, 272) * (e.t1 - e.t0)))
+            dense_edge += [e_id] * 272
+            dense_face += [m.patch] * 272
+            if len(e.members) > 1:  # a free edge's samples find no partner anyway
+                inner = _evaluate(row, e.t0 + np.linspace(0, 1, 17)[1:-1] * (e.t1 - e.t0))
+                coarse += [(e_id, m.patch, p) for p in inner]
+    tree = cKDTree(np.concatenate(dense))
+    dense_edge, dense_face = np.array(dense_edge), np.array(dense_face)
+    misses = 0
+    for e_id, face, p in coarse:
+        _, idx = tree.query(p, k=64)
+        other = idx[dense_face[idx] != face]
+        misses += int(dense_edge[other[0]] != e_id)
+    return misses
+
+
+def _strip_between_nets(width):
+    """Three flat patches side by side, 4 long: the middle one a strip ``width`` wide whose far
+    side runs at another speed (x = 4 s^2 against 4 s on its near side), so a fixed count of
+    samples along the two does not stand side by side."""
+    def net(y0, y1, x0, x1):
+        xs = np.array([x0, x1])  # x of the control points of the bottom and top rows
+        ys = np.array([[y0, y0, y0], [y1, y1, y1]])
+        return np.stack([xs.T, ys.T, np.zeros((3, 2))], axis=-1)
+
+    lin, sq = np.array([0.0, 2.0, 4.0]), np.array([0.0, 0.0, 4.0])
+    return [(net(0.0, 1.5, lin, lin), False), (net(1.5, 1.5 + width, lin, sq), False),
+            (net(1.5 + width, 3.0, sq, lin), False)]
+
+
+def test_edges_are_split_short_for_their_clearance():
+    """An edge 4 long with another face's boundary 3e-3 beside it (across a strip) is split into
+    pieces no longer than the ratio times that clearance, on both faces alike (no T-vertex), and a
+    check that samples each edge a fixed number of times then pairs every sample with its own
+    edge; without the pass, the strip's far side wins for some samples."""
+    nets = _strip_between_nets(3e-3)
+    plain = connect(nets, EPS)
+    assert _checker_misses(plain, nets) > 0
+    topo = connect(nets, EPS, clearance=(250.0, 1e-6 * 5.0))
+    assert topo.cleared > 0 and topo.t_vertices == 0 and topo.free_edges == plain.free_edges
+    from watertight_cli.topology import _evaluate, side_row
+
+    for e in topo.edges:
+        o = e.owner
+        pts = _evaluate(side_row(*nets[o.patch], o.side), e.t0 + np.linspace(0, 1, 65) * (e.t1 - e.t0))
+        if len(e.members) == 2:  # the strip's long sides: 3e-3 from the other one
+            assert np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() <= 250.0 * 3e-3 * 1.1
+    assert _checker_misses(topo, nets) == 0
+
+
+def test_a_boundary_nearer_than_near_asks_for_no_split():
+    """Boundaries closer than ``near`` count as one for any check at that resolution: no split."""
+    nets = _strip_between_nets(3e-3)
+    topo = connect(nets, EPS, clearance=(250.0, 1e-2))
+    assert topo.cleared == 0 and len(topo.edges) == len(connect(nets, EPS).edges)

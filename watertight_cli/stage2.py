@@ -56,7 +56,8 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
     # dropped, and a thin lens with three corners at one point made again (``topology.lens``),
     # when it lies within half the tolerance of its boundary curve, which its neighbours share
     shape, joined, made = join(groups, model.diagonal, src, tick, fold=0.5 * tol.approx_rel * model.diagonal,
-                               fallbacks=fallbacks, splits=splits)
+                               fallbacks=fallbacks, splits=splits,
+                               clearance=(tol.slender_ratio, tol.approx_rel * model.diagonal))
     # remade triangles that left a side free went back to their triangles (``occ.assemble.join``);
     # their fit's deviation stays in their faces' I4 measure, an overestimate
     quads["remade"] -= joined["triangles_reverted"]
@@ -157,6 +158,9 @@ def finish(ins, result, report: dict, tol: Tolerances, src: str, dst: str | None
             "slender_patches_split": slender["split"],
             "slender_split_vertices": slender["vertices"],
             "slender_left_by_triangles": slender["left_by_triangles"],
+            # vertices put into edges longer than ``Tolerances.slender_ratio`` times their distance
+            # to the nearest other edge (``topology.clearance_points``), beyond the slender ones
+            "clearance_split_vertices": joined["clearance_split_vertices"],
             # vertices near a tangential corner taken out of the side that did not need them
             # (``topology.unspike``): each was a spike of no width in its patch's wire
             "spikes_taken_out": joined["spikes_taken_out"],
@@ -617,7 +621,9 @@ def format_full_table(rep: dict) -> str:
         f"thin patches {rep.get('thin_patches', 0)}"
         + (f", thin lenses taken out {a['lenses_collapsed']}" if a.get("lenses_collapsed") else "")
         + (f", slender patches split {a['slender_patches_split']} (vertices {a['slender_split_vertices']})"
-           if a.get("slender_patches_split") else ""),
+           if a.get("slender_patches_split") else "")
+        + (f", edges split for clearance (vertices {a['clearance_split_vertices']})"
+           if a.get("clearance_split_vertices") else ""),
         f"  gap: before {b['gap_max']:.3g} -> after "
         + (f"{a['gap_max']:.3g} ({a['gap_max'] / d:.2g} of the diagonal)" if "gap_max" in a
            else "(not read back)"),

@@ -67,7 +67,8 @@ _REVERT_PASSES = 3
 
 def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
          fold: float = 0.0, fallbacks: list[dict] | None = None,
-         splits: np.ndarray | None = None) -> tuple[TopoDS_Shape, dict, list]:
+         splits: np.ndarray | None = None,
+         clearance: tuple[float, float] | None = None) -> tuple[TopoDS_Shape, dict, list]:
     """Faces of each group of patches ``(ctrl, rational, reversed)`` bounded by shared edges
     (``topology.connect`` at ``JOIN_REL`` x diagonal, ``build.joined_faces``), one shell per
     connected part; a solid where the group was a solid's shell and no edge is left free. Patches
@@ -84,7 +85,8 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
     patch has a side left free, it goes back to that net and the group is connected again
     (``triangles_reverted`` counts them). ``splits`` (k, 3): points that become vertices inside
-    the edges they lie on (``topology.split``)."""
+    the edges they lie on (``topology.split``); ``clearance``: ``(ratio, near)``, edges split to be
+    short for their clearance (``topology.clearance_points``)."""
     from ..core.bezier import surface_volumes
     from ..topology import connect, flat, folded, lens, needle, stray_needles
     from .build import joined_faces
@@ -94,7 +96,8 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     builder.MakeCompound(out)
     info = {"free_edges": 0, "shells": 0, "solids": 0, "open_solid_shells": 0, "t_vertices": 0,
             "edge_deviation_max": 0.0, "flat_patches": 0, "folds": 0, "lenses": 0, "fold_width_max": 0.0,
-            "triangles_reverted": 0, "degrees": [], "volume": 0.0, "spikes_taken_out": 0}
+            "triangles_reverted": 0, "degrees": [], "volume": 0.0, "spikes_taken_out": 0,
+            "clearance_split_vertices": 0}
     bodies: list[TopoDS_Shape | None] = [None] * len(groups)
     for g, (nets, solid) in enumerate(groups):
         if not nets:
@@ -119,12 +122,12 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             keep.append(n)
         info["flat_patches"] += len(nets) - len(keep)
         nets = keep
-        topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
+        topo = connect([(c, r) for c, r, _, _ in nets], eps, splits, clearance)
         needles = stray_needles(topo, [(c, r) for c, r, _, _ in nets], eps)
         if needles:
             info["flat_patches"] += len(needles)
             nets = [n for i, n in enumerate(nets) if i not in needles]
-            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits, clearance)
         for _ in range(_REVERT_PASSES):
             # a remade triangle's new corner that its neighbour's side does not take (U_Joint_2:
             # 8 free edges where none were before the triangles were remade) goes back to being
@@ -138,7 +141,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             for i in undo:
                 c, r = nets[i][3]
                 nets[i] = (c, r, nets[i][2], None)
-            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits, clearance)
         nets = [n[:3] for n in nets]
         info["degrees"] += [max(c.shape[0], c.shape[1]) - 1 for c, _, _ in nets]
         faces = joined_faces(nets, topo, tick)
@@ -146,6 +149,7 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
         info["free_edges"] += free
         info["t_vertices"] += topo.t_vertices
         info["spikes_taken_out"] += topo.unspiked
+        info["clearance_split_vertices"] += topo.cleared
         info["edge_deviation_max"] = max([info["edge_deviation_max"]]
                                          + [m.deviation for e in topo.edges for m in e.members])
         shells, parts = [], topo.components()
