@@ -279,6 +279,7 @@ def test_max_aspect_splits_slender_patches_sides(tmp_path):
         assert reps[opt]["ok"] and all(reps[opt]["invariants"].values())
     split, whole = reps["100"]["after"], reps["inf"]["after"]
     assert whole["slender_patches_split"] == 0 and split["slender_patches_split"] > 0
+    assert whole["clearance_split_vertices"] == 0
     assert split["slender_split_vertices"] > split["slender_patches_split"]
     assert reps["100"]["patches_out"] == reps["inf"]["patches_out"]
     assert split["t_vertices"] == whole["t_vertices"]

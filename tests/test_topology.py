@@ -619,3 +619,18 @@ def test_a_boundary_nearer_than_near_asks_for_no_split():
     nets = _strip_between_nets(3e-3)
     topo = connect(nets, EPS, clearance=(250.0, 1e-2))
     assert topo.cleared == 0 and len(topo.edges) == len(connect(nets, EPS).edges)
+
+
+@pytest.mark.parametrize("gap, apart", [(1e-7, False), (1e-3, True)])
+def test_a_split_point_keeps_clear_of_other_edges(gap, apart):
+    """``clearance_points`` puts no vertex within ``near`` of another edge (it would become a
+    vertex of both, a hair apart), and finds such an edge even where its samples are far apart:
+    a line sampled 3 times, ``gap`` beside one sampled 17 times."""
+    from watertight_cli.topology import _apart
+
+    x = np.linspace(0.0, 4.0, 17)
+    fine = np.stack([x, 0 * x, 0 * x], axis=1)
+    xc = np.r_[np.zeros(8), 2.0, np.full(8, 4.0)]  # 17 samples at 3 points: two segments 2 long
+    X = np.stack([fine, np.stack([xc, np.full(17, gap), 0 * xc], axis=1)])
+    got = _apart(X, fine[1:-1], np.zeros(15, dtype=int), 1e-5)
+    assert got.all() if apart else not got.any()

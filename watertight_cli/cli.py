@@ -272,7 +272,9 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
                    "run close together; the long sides of such a strip, and its neighbours' sides "
                    "there, are split into shorter edges at the same points (the patches stay as "
                    "they are). Slivers (narrower than 5e-7 of the diagonal) are split at 20 x "
-                   "RATIO. 'inf' leaves them unsplit.")
+                   "RATIO. Every edge is likewise kept no longer than RATIO times its distance to "
+                   "the nearest other edge, where that is above the tolerance. 'inf' splits "
+                   "nothing.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the conversion report as JSON on stdout (batch: the --report document).")
 @click.option("--overwrite/--no-overwrite", default=None,

@@ -68,7 +68,9 @@ class Tolerances:
         edge is about 540 times longer than the strip is wide. 250 keeps a margin of two; 100
         (the default before 2026-12-06, when strips were still cut across into pieces) made 2-2.5
         times as many pieces for no better checker figures on the fixtures (unmatched boundary
-        samples 16 at 100, 6 at 250, 10 at 400).
+        samples 16 at 100, 6 at 250, 10 at 400). Every edge is also kept no longer than this ratio
+        times its distance to the nearest other edge, where that distance is above ``approx_rel``
+        (``topology.clearance_points``): a third face's boundary beyond a thin neighbour.
     max_degree:
         Largest patch degree (``--max-degree``). 25 is OCCT's Bezier limit
         (``Geom_BezierSurface::MaxDegree``).

@@ -462,19 +462,61 @@ def clearance_points(topo: Topology, rows, ratio: float, near: float) -> np.ndar
     speed = np.linalg.norm(X[long_, 2:] - X[long_, :-2], axis=2) * (0.5 * n)
     allowed = np.full((len(long_), n + 1), np.inf)
     allowed[:, 1:n] = ratio * clear / np.maximum(speed, 1e-300)
+    need = np.flatnonzero(allowed.min(axis=1) < 1.0)
+    if not len(need):
+        return np.zeros((0, 3))
+    # a vertex goes only where no other edge passes within ``near``: put into an edge a hair from
+    # another (both sides of a sliver), it would become a vertex of both, and the mesher's
+    # triangles between them would have two corners at one node
+    free = _apart(X, X[long_[need], 1:n].reshape(-1, 3), np.repeat(long_[need], n - 1), near)
+    free = free.reshape(len(need), n - 1)
     out = []
-    for q in np.flatnonzero(allowed.min(axis=1) < 1.0):
+    for q, fr in zip(need, free, strict=True):
         lim = allowed[q]
+        cut_ok = np.concatenate([[False], fr, [False]])
         i = 0
         while True:
             fits = a[i:] - a[i] <= np.minimum.accumulate(lim[i:])
             if fits.all():
                 break
-            i += max(int(np.argmin(fits)) - 1, 1)
-            if i >= n:
+            j = i + max(int(np.argmin(fits)) - 1, 1)
+            back = np.flatnonzero(cut_ok[i + 1:j + 1])
+            ahead = np.flatnonzero(cut_ok[j + 1:])
+            if len(back):
+                i = i + 1 + int(back[-1])
+            elif len(ahead):  # no vertex may go in this piece: the next place one may
+                i = j + 1 + int(ahead[0])
+            else:
                 break
             out.append(X[long_[q], i])
     return np.array(out).reshape(-1, 3)
+
+
+def _apart(X: np.ndarray, pts: np.ndarray, own: np.ndarray, near: float) -> np.ndarray:
+    """For points (k, 3) on the edges ``own`` (k,) of the sampled edges X (E, m, 3): True where no
+    other edge's polyline passes within ``near``. Each segment lies within half its length of its
+    midpoint, so segments are looked up by their midpoints, in groups of one length class (a
+    radius of ``near`` plus the class's largest half length finds every one that can be near)."""
+    a, b = X[:, :-1].reshape(-1, 3), X[:, 1:].reshape(-1, 3)
+    label = np.repeat(np.arange(len(X)), X.shape[1] - 1)
+    half = 0.5 * np.linalg.norm(b - a, axis=1)
+    level = np.floor(np.log2(np.maximum(half, 1e-300))).astype(int)
+    ok = np.ones(len(pts), dtype=bool)
+    for lv in np.unique(level):
+        sel = np.flatnonzero(level == lv)
+        hits = cKDTree(0.5 * (a[sel] + b[sel])).query_ball_point(pts, near + 2.0 ** (lv + 1))
+        counts = np.fromiter((len(h) for h in hits), dtype=int, count=len(hits))
+        if not counts.sum():
+            continue
+        qi = np.repeat(np.arange(len(pts)), counts)
+        si = sel[np.concatenate([np.asarray(h, dtype=int) for h in hits])]
+        keep = label[si] != own[qi]
+        qi, si = qi[keep], si[keep]
+        A, AB, P = a[si], b[si] - a[si], pts[qi]
+        t = np.einsum("ij,ij->i", P - A, AB) / np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300)
+        d = np.linalg.norm(A + np.clip(t, 0.0, 1.0)[:, None] * AB - P, axis=1)
+        ok[qi[d < near]] = False
+    return ok
 
 
 def unspike(topo: Topology, eps: float, first_split: int | None = None) -> int:
