@@ -408,7 +408,8 @@ def clearance_points(topo: Topology, rows, ratio: float, near: float) -> np.ndar
     its patch.
 
     Each edge is sampled ``_CLEAR_SAMPLES`` + 1 times on its owner's side; a sample's clearance is
-    its distance to the polyline of the nearest sample of another edge, looked up among its
+    its distance to the polyline of the nearest sample of another edge that shares no vertex with
+    it (one that does meets it at a corner, where splitting cannot help), looked up among its
     ``_CLEAR_NEAREST`` nearest samples (none of another edge among them: farther than a quarter of
     the edge, never too near). Samples whose clearance is below ``near`` set no limit: a boundary
     that close counts as the same one for any check at that resolution, and splitting for it would
@@ -444,7 +445,14 @@ def clearance_points(topo: Topology, rows, ratio: float, near: float) -> np.ndar
     k = min(_CLEAR_NEAREST, len(pts))
     d, nb = cKDTree(pts).query(pts[asked], k=k)
     d, nb = d.reshape(len(asked), k), nb.reshape(len(asked), k)
-    other = label[nb] != label[asked][:, None]
+    # an edge that shares a vertex with this one meets it there: near a corner no split helps (a
+    # piece there has its samples as near the corner, for its length, as the whole edge had), and
+    # near a tangential one it harms: the first piece puts all its samples where the edges run
+    # within the partner's sample spacing of each other (sphere_cut_box: 2 -> 66 unmatched)
+    ends = np.array([(topo.edges[i].va, topo.edges[i].vb) for i in live])
+    mine, theirs = ends[label[asked]][:, None, :], ends[label[nb]]
+    other = (label[nb] != label[asked][:, None]) & ~(
+        (theirs[..., :1] == mine) | (theirs[..., 1:] == mine)).any(axis=2)
     first = np.argmax(other, axis=1)
     rows_ = np.arange(len(asked))
     j, p = nb[rows_, first], pts[asked]
