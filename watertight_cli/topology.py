@@ -470,7 +470,14 @@ def clearance_points(topo: Topology, rows, ratio: float, near: float) -> np.ndar
     speed = np.linalg.norm(X[long_, 2:] - X[long_, :-2], axis=2) * (0.5 * n)
     allowed = np.full((len(long_), n + 1), np.inf)
     allowed[:, 1:n] = ratio * clear / np.maximum(speed, 1e-300)
-    need = np.flatnonzero(allowed.min(axis=1) < 1.0)
+    # no vertex goes on a side of a patch with a collapsed side (a triangle, kept or remade): the
+    # same rule as ``stage2._split_slender``'s; a wedge of wing_fuselage whose two long sides run
+    # within 1e-6 of each other over part of their length took five and its mesh four more edges
+    # with three triangles
+    pointed = {m.patch for e in topo.edges if e.degenerate for m in e.members}
+    on_pointed = np.array([any(m.patch in pointed for m in topo.edges[live[q]].members) for q in long_],
+                          dtype=bool)
+    need = np.flatnonzero((allowed.min(axis=1) < 1.0) & ~on_pointed)
     if not len(need):
         return np.zeros((0, 3))
     # a vertex goes only where no other edge passes within ``near``: put into an edge a hair from
