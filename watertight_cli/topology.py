@@ -420,8 +420,9 @@ def clearance_points(topo: Topology, rows, ratio: float, near: float) -> np.ndar
     ``ratio`` x clearance over the curve's speed there (a curve that runs slowly into a corner is
     sampled densely there already). A piece ends at a sample, so a piece is never shorter than a
     sample step (a tangential corner, whose clearance falls to nothing at the vertex, gets pieces
-    growing away from it). Degenerate edges and edges
-    with a spline parameter map are left out (``split`` leaves the latter whole)."""
+    growing away from it). No vertex goes within ``near`` of another edge (``_apart``) or on a
+    side of a patch with a collapsed side. Degenerate edges and edges with a spline parameter map
+    are left out (``split`` leaves the latter whole)."""
     n = _CLEAR_SAMPLES
     live = [i for i, e in enumerate(topo.edges)
             if not e.degenerate and all(m.smap is None for m in e.members)]
