@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from watertight_cli.core.bezier import surface_subbox
-from watertight_cli.topology import connect, flat, project
+from watertight_cli.topology import clear, connect, flat, project
 
 EPS = 1e-9
 
@@ -602,7 +602,8 @@ def test_edges_are_split_short_for_their_clearance():
     nets = _strip_between_nets(3e-3)
     plain = connect(nets, EPS)
     assert _checker_misses(plain, nets) > 0
-    topo = connect(nets, EPS, clearance=(250.0, 1e-6 * 5.0))
+    topo = connect(nets, EPS)
+    clear(topo, nets, EPS, 250.0, 1e-6 * 5.0)
     assert topo.cleared > 0 and topo.t_vertices == 0 and topo.free_edges == plain.free_edges
     from watertight_cli.topology import _evaluate, side_row
 
@@ -617,7 +618,8 @@ def test_edges_are_split_short_for_their_clearance():
 def test_a_boundary_nearer_than_near_asks_for_no_split():
     """Boundaries closer than ``near`` count as one for any check at that resolution: no split."""
     nets = _strip_between_nets(3e-3)
-    topo = connect(nets, EPS, clearance=(250.0, 1e-2))
+    topo = connect(nets, EPS)
+    assert clear(topo, nets, EPS, 250.0, 1e-2) == 0
     assert topo.cleared == 0 and len(topo.edges) == len(connect(nets, EPS).edges)
 
 

@@ -364,12 +364,10 @@ def stray_needles(topo: Topology, nets: list[tuple[np.ndarray, bool]], eps: floa
     return out
 
 
-def connect(nets: list[tuple[np.ndarray, bool]], eps: float, extra: np.ndarray | None = None,
-            clearance: tuple[float, float] | None = None) -> Topology:
+def connect(nets: list[tuple[np.ndarray, bool]], eps: float, extra: np.ndarray | None = None) -> Topology:
     """The topology of patches (``(ctrl, rational)`` each) whose shared boundaries coincide within
     ``eps`` (model units). See the module docstring. ``extra`` (k, 3): points that become vertices
-    inside the edges they lie on within ``eps`` (``split``). ``clearance``: ``(ratio, near)`` for
-    ``clearance_points``, whose points are put in the same way after ``extra``'s.
+    inside the edges they lie on within ``eps`` (``split``).
 
     A patch whose wire still passes one vertex twice (a cusp corner: the vertex lies on both sides
     that meet there, and the faces around it form one fan, so ``_unpinch`` cannot split it) is no
@@ -386,11 +384,19 @@ def connect(nets: list[tuple[np.ndarray, bool]], eps: float, extra: np.ndarray |
     first_split = len(topo.vertices)
     if extra is not None and len(extra) and state:
         split(topo, state["rows"], np.asarray(extra, dtype=float).reshape(-1, 3), eps)
-    if clearance is not None and state:
-        pts = clearance_points(topo, state["rows"], *clearance)
-        topo.cleared = split(topo, state["rows"], pts, eps) if len(pts) else 0
     topo.unspiked = unspike(topo, eps, first_split)
     return topo
+
+
+def clear(topo: Topology, nets: list[tuple[np.ndarray, bool]], eps: float, ratio: float, near: float) -> int:
+    """Put ``clearance_points`` into the edges of ``connect``'s topology of ``nets`` (``split``),
+    in place, and return how many vertices went in (also ``topo.cleared``). Once, on the topology
+    that is built: the pieces change no pairing, so nothing decided on an earlier one depends on
+    them."""
+    rows = [{name: side_row(c, r, name) for name in SIDE_NAMES} for c, r in nets]
+    pts = clearance_points(topo, rows, ratio, near)
+    topo.cleared = split(topo, rows, pts, eps) if len(pts) else 0
+    return topo.cleared
 
 
 def clearance_points(topo: Topology, rows, ratio: float, near: float) -> np.ndarray:

@@ -85,10 +85,10 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
     (``(ctrl, rational)``, a triangle that ``stage2._untriangle`` made four-sided): where such a
     patch has a side left free, it goes back to that net and the group is connected again
     (``triangles_reverted`` counts them). ``splits`` (k, 3): points that become vertices inside
-    the edges they lie on (``topology.split``); ``clearance``: ``(ratio, near)``, edges split to be
-    short for their clearance (``topology.clearance_points``)."""
+    the edges they lie on (``topology.split``); ``clearance``: ``(ratio, near)``, edges of the topology
+    that is built split to be short for their clearance (``topology.clear``)."""
     from ..core.bezier import surface_volumes
-    from ..topology import connect, flat, folded, lens, needle, stray_needles
+    from ..topology import clear, connect, flat, folded, lens, needle, stray_needles
     from .build import joined_faces
 
     builder = BRep_Builder()
@@ -122,12 +122,12 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             keep.append(n)
         info["flat_patches"] += len(nets) - len(keep)
         nets = keep
-        topo = connect([(c, r) for c, r, _, _ in nets], eps, splits, clearance)
+        topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
         needles = stray_needles(topo, [(c, r) for c, r, _, _ in nets], eps)
         if needles:
             info["flat_patches"] += len(needles)
             nets = [n for i, n in enumerate(nets) if i not in needles]
-            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits, clearance)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
         for _ in range(_REVERT_PASSES):
             # a remade triangle's new corner that its neighbour's side does not take (U_Joint_2:
             # 8 free edges where none were before the triangles were remade) goes back to being
@@ -141,7 +141,9 @@ def join(groups: list[tuple[list, bool]], diagonal: float, path: str, tick=None,
             for i in undo:
                 c, r = nets[i][3]
                 nets[i] = (c, r, nets[i][2], None)
-            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits, clearance)
+            topo = connect([(c, r) for c, r, _, _ in nets], eps, splits)
+        if clearance is not None:
+            clear(topo, [(c, r) for c, r, _, _ in nets], eps, *clearance)
         nets = [n[:3] for n in nets]
         info["degrees"] += [max(c.shape[0], c.shape[1]) - 1 for c, _, _ in nets]
         faces = joined_faces(nets, topo, tick)
