@@ -136,7 +136,8 @@ class _Ref:
     wb: float
     pole: bool = False
     # a rung along an iso piece whose edge parameter is not affine along the rung: (piece H, w0,
-    # w1, v at the rung's start, v at its end); the rung then takes K at that parameter (``_rung_row``)
+    # w1, v at the rung's start, v at its end), or for two pieces (((H, w0, w1), ...), wa, wb, v at
+    # the start, v at the end); the rung then takes K at that parameter (``_rung_row``)
     along: tuple | None = None
 
 
@@ -713,14 +714,22 @@ def _rung_ref(pieces, a: np.ndarray, b: np.ndarray, eps: tuple[float, float], le
         two = table.pair(a, b, eps)
         if two is None:
             return None
-        ws = []
+        ws, bent = [], False
         for x, m in zip((a, b), two, strict=True):
             p = table.pieces[m]
-            bent = p.H.shape[0] > 2 and not _affine_enough(p.H, abs(b[1] - a[1]), eps[1], length, slide)
-            if p.degenerate or bent:
+            if p.degenerate:
                 return None
+            bent = bent or (p.H.shape[0] > 2
+                            and not _affine_enough(p.H, abs(b[1] - a[1]), eps[1], length, slide))
             ws.append(p.w0 + _t_at_u(p.H, float(x[1]), axis=1) * (p.w1 - p.w0))
-        return _Ref(table.pieces[two[0]].edge, ws[0], ws[1])
+        # the rung then takes K at its own parameter over both pieces, as over one bent piece
+        # (trj8: a rung over a piece 0.18 long that is not affine and one 1e-6 long beside it,
+        # where stage 1 dropped the cut at the pcurve's knot, ``untrim._knot_cuts_dropped``)
+        along = None
+        if bent:
+            along = (tuple((table.pieces[m].H, table.pieces[m].w0, table.pieces[m].w1) for m in two),
+                     ws[0], ws[1], float(a[1]), float(b[1]))
+        return _Ref(table.pieces[two[0]].edge, ws[0], ws[1], along=along)
     p, uv = table.pieces[k], table.uv[k]
     if p.degenerate:
         return _Ref(p.edge, p.w0, p.w1, pole=True)
@@ -750,15 +759,33 @@ def _piece_t_at_v(H: np.ndarray, v: np.ndarray) -> np.ndarray:
     return t
 
 
+def _edge_w_at_v(along: tuple, v: np.ndarray) -> np.ndarray:
+    """The edge parameter where a rung's iso piece reaches the values ``v`` (``_Ref.along``: its
+    first three entries are the piece's H, w0 and w1, or, for two pieces of one edge end to end,
+    a tuple of (H, w0, w1) per piece, each then taking the v within its own range)."""
+    if isinstance(along[0], np.ndarray):
+        H, w0, w1 = along[:3]
+        return w0 + _piece_t_at_v(H, v) * (w1 - w0)
+    w = np.empty_like(v)
+    done = np.zeros(v.shape, dtype=bool)
+    for k, (H, w0, w1) in enumerate(along[0]):
+        ends = H[[0, -1], 1] / H[[0, -1], 2]
+        mine = ~done & ((v >= ends.min()) & (v <= ends.max()) if k < len(along[0]) - 1 else True)
+        if mine.any():
+            w[mine] = w0 + _piece_t_at_v(H, v[mine]) * (w1 - w0)
+            done |= mine
+    return w
+
+
 def _rung_samples(K: np.ndarray, along: tuple, max_degree: int):
     """K at a rung's own parameter, K(a(t)), sampled at Chebyshev points ``tc`` (for a fit) and at
     even points ``te`` (to measure it): (tc, K(a(tc)), te, K(a(te))); None where a is constant."""
-    H, w0, w1, va, vb = along
+    va, vb = along[3], along[4]
     n = 8 * (max_degree + 1)
     tc = 0.5 - 0.5 * np.cos(np.pi * np.arange(n) / (n - 1))
     te = np.linspace(0.0, 1.0, 201)
     t = np.concatenate([tc, te])
-    w = w0 + _piece_t_at_v(H, va + t * (vb - va)) * (w1 - w0)
+    w = _edge_w_at_v(along, va + t * (vb - va))
     if w[n - 1] == w[0]:
         return None
     a = np.clip((w - w[0]) / (w[n - 1] - w[0]), 0.0, 1.0)

@@ -625,8 +625,11 @@ def _as_side(p: _Piece, veps: float) -> Side:
     return Side(p.H, iso, p.edge, p.w0, p.w1, p.degenerate, p.pcurve)
 
 
-def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, rung_cuts: str = "plan"):
-    """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc)."""
+def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, rung_cuts: str = "plan",
+           plan: dict[int, np.ndarray] | None = None):
+    """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc).
+    ``plan``: the edge plan, which tells the ends of rung pieces at a plan parameter from those at
+    a knot of the face's own pcurve only (``_knot_cuts_dropped``)."""
     ub, vb, ueps, veps = g.ub, g.vb, g.ueps_lines, g.veps
     ends_uv = np.array([p.H[k, :2] / p.H[k, 2] for p in pieces for k in (0, -1)])
     lo, hi = float(ends_uv[:, 0].min()), float(ends_uv[:, 0].max())
@@ -675,15 +678,21 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
     vertex_ends = []
     plan_only: set[float] = set()  # v of the ends that are plan cuts, not vertices of the face
     at_vertex: set[float] = set()
+    planned: set[float] = set()  # v of the ends at a parameter of the edge's plan
     for q in fr.iso_pieces:
         lo, hi = ranges.get(q.edge, (np.inf, -np.inf))
         tol_w = 1e-9 * max(hi - lo, 1e-300)
+        ws = plan.get(q.edge) if plan is not None and q.edge is not None else None
         for k, w in ((0, q.w0), (-1, q.w1)):
             vertex = abs(w - lo) <= tol_w or abs(w - hi) <= tol_w
             if rung_cuts == "plan" or vertex:
-                vertex_ends.append((q.H[k, 0] / q.H[k, 2], q.H[k, 1] / q.H[k, 2]))
-                (plan_only if not vertex else at_vertex).add(float(q.H[k, 1] / q.H[k, 2]))
+                v = float(q.H[k, 1] / q.H[k, 2])
+                vertex_ends.append((q.H[k, 0] / q.H[k, 2], v))
+                (plan_only if not vertex else at_vertex).add(v)
+                if ws is None or (len(ws) and float(np.abs(ws - w).min()) <= tol_w):
+                    planned.add(v)
     plan_only -= at_vertex
+    knot_only = plan_only - planned  # ends at a knot of the pcurve that the plan thinned away
     vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
     # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
     # inside a neighbouring cell's rung a hair from its end: see _NEAR_END. A part from line a to
@@ -720,6 +729,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
         cuts = _vertex_cuts(knots, vertex_ends, (b0, t0), (b1, t1), bv[0], tv[1], ueps, veps, rungs)
         if len(cuts) > len(knots):
             cuts = _sliver_cuts_dropped(cuts, set(knots), plan_only, face, (b0, t0), (b1, t1), g)
+            cuts = _knot_cuts_dropped(cuts, knot_only, face, (b0, t0), (b1, t1), g)
             cuts, slant = _slanted_cuts(cuts, set(knots), rungs, face, (b0, t0), (b1, t1), g)
             if slant:
                 slants[len(cells)] = slant
@@ -1231,6 +1241,42 @@ def _sliver_cuts_dropped(cuts: list[float], knots: set[float], plan_only: set[fl
         else:
             lines.append(x)
     return [c for c in cuts if c not in dropped]
+
+
+def _knot_cuts_dropped(cuts: list[float], knot_only: set[float], face: Face, left, right,
+                       g: _FaceGeometry) -> list[float]:
+    """A cell's cuts without those at an end of a rung piece that is a knot of the face's pcurve
+    but no parameter of the edge's plan (``knot_only``), where it stands within a sliver (in 3D,
+    on both rungs) of the cut beside it. The edge's plan keeps one of two parameters that close
+    (``_thin_plan``: often the 3D curve's knot and the pcurve's knot for the same point, a hair
+    apart in parameter), but the pcurve is still cut at its own knot; cut across the cell there
+    too, the band between the two lines was a sliver all along, and stage 2 made needles of it
+    that a tessellation welded at a sliver collapses (occt__trj8_k1-db-214.stp faces 44, 54 and
+    55: bands 1.6e-7 to 1.3e-6 wide, 0.006 to 0.19 long). Without the cut, the rung runs over the
+    two pieces of its edge that meet there (``substitute.IsoPieces.pair``), and the neighbour,
+    which has no vertex there, pairs with it. Only where the band is wider than
+    ``topology.MERGE_REL`` somewhere, as ``_sliver_cuts_dropped``: a thinner one is dropped as
+    flat later and its corners joined."""
+    near = [c for c in cuts if c in knot_only]
+    if not near or len(cuts) < 2:
+        return cuts
+    from .topology import MERGE_REL
+
+    merge = MERGE_REL * g.diagonal
+    cs = sorted(cuts)
+    uv = np.array([[_rung_u(*side, c), c] for c in cs for side in (left, right)])
+    pts = face.surface.evaluate(uv).reshape(len(cs), 2, 3)
+    dropped: set[int] = set()
+    for i, c in enumerate(cs):
+        if c not in knot_only:
+            continue
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(cs) and j not in dropped:
+                e = np.linalg.norm(pts[i] - pts[j], axis=1)
+                if np.all(e <= g.sliver) and np.any(e > merge):
+                    dropped.add(i)
+                    break
+    return [c for i, c in enumerate(cs) if i not in dropped]
 
 
 def _rung_u(b: np.ndarray, t: np.ndarray, c: float) -> float:
@@ -1895,7 +1941,7 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     fr.flattened = flat
     fr.approximated = bool(flat > g.snap)
     reparam = 0.0
-    for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts):
+    for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts, plan):
         t = time.perf_counter()
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
         reparam += time.perf_counter() - t
