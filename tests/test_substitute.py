@@ -1070,6 +1070,31 @@ def test_a_rung_a_hair_past_its_piece_takes_the_edge_through_the_next_piece():
     assert S._rung_ref(pieces, np.array([0.3, 0.5]), np.array([0.3, 0.9]), eps) is None
 
 
+
+def test_a_rung_over_two_pieces_takes_the_curve_at_its_own_parameter_where_one_is_bent():
+    """Where stage 1 dropped a rung cut at a pcurve knot (``untrim._knot_cuts_dropped``), the rung
+    runs over two pieces of its edge; when one of them is not affine in v, the rung takes K at its
+    own parameter through both (trj8: left unshared, 8 free edges). The edge parameter it samples
+    follows each piece within its own v-range."""
+    from types import SimpleNamespace
+
+    bent = np.array([[0.0, 0.1, 1.0], [0.0, 0.35, 1.0], [0.0, 0.45, 1.0], [0.0, 0.5, 1.0]])  # w 0 -> 1
+    short = np.array([[0.0, 0.5, 1.0], [0.0, 0.5 + 1e-6, 1.0]])  # w 1 -> 1 + 1e-6
+    pieces = [SimpleNamespace(edge=3, H=bent, w0=0.0, w1=1.0, degenerate=False),
+              SimpleNamespace(edge=3, H=short, w0=1.0, w1=1.0 + 1e-6, degenerate=False)]
+    eps = (1e-9, 1e-10)
+    a, b = np.array([0.0, 0.2]), np.array([0.0, 0.5 + 1e-6])
+    ref = S._rung_ref(pieces, a, b, eps, length=1.0, slide=1e-6)  # a slide of 1e-6 allowed: too bent
+    assert ref is not None and ref.edge == 3 and ref.along is not None
+    assert ref.wb == pytest.approx(1.0 + 1e-6, abs=1e-15)
+    v = np.array([0.2, 0.3, 0.45, 0.5, 0.5 + 5e-7, 0.5 + 1e-6])
+    w = S._edge_w_at_v(ref.along, v)
+    np.testing.assert_allclose(curve_eval(bent[:, :2], w[:4])[:, 1], v[:4], atol=1e-12)  # on the bent piece
+    np.testing.assert_allclose(w[4:], [1.0 + 5e-7, 1.0 + 1e-6], atol=1e-12)  # on the short one
+    # one bent piece alone: the single-piece form, as before
+    one = S._edge_w_at_v((bent, 0.0, 1.0, 0.2, 0.5), v[:4])
+    np.testing.assert_allclose(one, w[:4], atol=1e-15)
+
 def test_a_rational_guide_is_measured_in_space():
     """A long side's guided piece may run along a rational edge curve (fusee, after 4f07725 laid a
     lone pcurve piece on its slab line): its feet on the guide are points, not homogeneous rows."""

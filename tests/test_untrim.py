@@ -859,6 +859,34 @@ def test_a_plan_cut_a_sliver_from_a_knot_line_is_dropped():
     assert _sliver_cuts_dropped(cuts, {0.5}, {hair, wide}, face, left, right, g) == cuts  # thin: a vertex
 
 
+
+def test_a_rung_cut_at_a_pcurve_knot_the_plan_left_out_is_dropped_beside_a_near_cut():
+    """The edge plan keeps one of two parameters a hair apart (the 3D curve's knot and the
+    pcurve's), but the pcurve is still cut at its own knot; a cut across the cell at that end
+    stood within a sliver of the plan's cut on both rungs, and stage 2 made a needle of the band
+    between them (trj8 faces 44, 54 and 55: up to 1.3e-6 wide, 0.19 long). Such a cut is dropped;
+    plan cuts, cuts farther than a sliver on either rung and cuts thinner than the merge distance
+    everywhere (dropped as flat later) are kept."""
+    from types import SimpleNamespace
+
+    from watertight_cli.untrim import _knot_cuts_dropped
+
+    diagonal = 100.0  # sliver 1e-6, merge distance 4e-7
+    face = SimpleNamespace(surface=SimpleNamespace(
+        evaluate=lambda uv: np.column_stack([uv[:, 0], uv[:, 1], np.zeros(len(uv))])))
+    g = SimpleNamespace(sliver=TOL.sliver_rel * diagonal, diagonal=diagonal)
+    left, right = (np.array([0.0, 0.0]), np.array([0.0, 1.0])), (np.array([1.0, 0.0]), np.array([1.0, 1.0]))
+    knot, far, flat = 0.3 + 8e-7, 0.6 + 3e-6, 0.8 + 1e-7
+    cuts = [0.3, knot, 0.6, far, 0.8, flat]
+    assert _knot_cuts_dropped(cuts, {knot, far, flat}, face, left, right, g) == [0.3, 0.6, far, 0.8, flat]
+    assert _knot_cuts_dropped(cuts, set(), face, left, right, g) == cuts  # every end at a plan cut
+    # the band narrows to a hair at the left rung and widens past a sliver at the right one: kept
+    slanted = SimpleNamespace(surface=SimpleNamespace(
+        evaluate=lambda uv: np.column_stack([uv[:, 0], uv[:, 1] * (1 + 2 * uv[:, 0]), np.zeros(len(uv))])))
+    assert _knot_cuts_dropped([0.3, knot], {knot}, slanted, left, right, g) == [0.3, knot]
+    # a knot cut beside another knot cut: one of the two goes, the band is gone
+    assert len(_knot_cuts_dropped([0.3, knot], {0.3, knot}, face, left, right, g)) == 1
+
 def _square_with_hole(bottom_cut: float, top_cut: float):
     """The unit square face of ``_square_with_cuts`` with a rectangular hole [0.3, 0.7] x [0.4, 0.6]
     whose lower side is cut at u = ``bottom_cut`` and its upper side at ``top_cut``."""
