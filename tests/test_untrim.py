@@ -860,6 +860,24 @@ def test_a_plan_cut_a_sliver_from_a_knot_line_is_dropped():
 
 
 
+def test_the_plan_keeps_one_of_two_pcurve_knots_closer_than_thin():
+    """Two faces' pcurve knots a few 1e-6 apart on one edge (trj8 edge 116, one pcurve re-timed):
+    the plan keeps one, and the face whose knot is left out still cuts its own pcurve there. Plan
+    values that are no pcurve knot go only within a sliver; a knot farther than ``thin`` stays."""
+    from types import SimpleNamespace
+
+    from watertight_cli.untrim import _thin_plan
+
+    edge = SimpleNamespace(first=0.0, last=1.0, curve=SimpleNamespace(
+        evaluate=lambda w: np.column_stack([np.asarray(w, float), np.zeros(len(w)), np.zeros(len(w))])))
+    sliver, thin = 1e-6, 5e-5
+    params = np.array([0.25, 0.25 + 8e-6, 0.5, 0.5 + 8e-6, 0.75, 0.75 + 1e-4, 0.9, 0.9 + 5e-7])
+    knots = {0.25 + 8e-6, 0.75 + 1e-4, 0.9 + 5e-7}
+    np.testing.assert_array_equal(_thin_plan(params, edge, sliver, thin, knots),
+                                  [0.25, 0.5, 0.5 + 8e-6, 0.75, 0.75 + 1e-4, 0.9])
+    # without ``thin`` only the sliver rule applies
+    np.testing.assert_array_equal(_thin_plan(params, edge, sliver), params[:-1])
+
 def test_a_rung_cut_at_a_pcurve_knot_the_plan_left_out_is_dropped_beside_a_near_cut():
     """The edge plan keeps one of two parameters a hair apart (the 3D curve's knot and the
     pcurve's), but the pcurve is still cut at its own knot; a cut across the cell at that end
