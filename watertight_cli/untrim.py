@@ -1260,8 +1260,8 @@ def _knot_cuts_dropped(cuts: list[float], knot_only: set[float], face: Face, lef
     """A cell's cuts without those at an end of a rung piece that is a knot of the face's pcurve
     but no parameter of the edge's plan (``knot_only``), where it stands within a sliver (in 3D,
     on both rungs) of the cut beside it. The edge's plan keeps one of two parameters that close
-    (``_thin_plan``: often the 3D curve's knot and the pcurve's knot for the same point, a hair
-    apart in parameter), but the pcurve is still cut at its own knot; cut across the cell there
+    (``_thin_plan``; on trj8 the two faces' pcurve knots for one point, a hair apart in parameter
+    after one pcurve was re-timed), but the pcurve is still cut at its own knot; cut across the cell there
     too, the band between the two lines was a sliver all along, and stage 2 made needles of it
     that a tessellation welded at a sliver collapses (occt__trj8_k1-db-214.stp faces 44, 54 and
     55: bands 1.6e-7 to 1.3e-6 wide, 0.006 to 0.19 long). Without the cut, the rung runs over the
