@@ -106,14 +106,18 @@ def test_counts_do_not_depend_on_face_order(seed):
     b = tessellation_check([faces[i] for i in order], 1e-4)
     for k in ("triangles", "free_edges", "nonmanifold_edges", "degenerate_triangles", "watertight"):
         assert a[k] == b[k]
-    # watertight is trimesh's own test on the welded mesh
+    # watertight is trimesh's own test on the welded mesh (the check itself does not import it)
     import trimesh
 
     P = np.concatenate([p for p, _ in faces])
     base = np.cumsum([0] + [len(p) for p, _ in faces])
     node = weld(P, 1e-4)
     T = np.concatenate([node[t + base[i]] for i, (_, t) in enumerate(faces)])
-    assert a["watertight"] == trimesh.Trimesh(np.zeros((node.max() + 1, 3)), T, process=False).is_watertight
+    mesh = trimesh.Trimesh(np.zeros((node.max() + 1, 3)), T, process=False)
+    assert a["watertight"] == mesh.is_watertight
+    # and the edge counts are trimesh's, from its own edges_sorted
+    counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)[1]
+    assert (a["free_edges"], a["nonmanifold_edges"]) == (int((counts == 1).sum()), int((counts > 2).sum()))
 
 
 def test_a_mesher_failure_is_reported_and_the_conversion_goes_on(tmp_path, monkeypatch):
