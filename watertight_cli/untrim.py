@@ -2110,6 +2110,9 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
 #: control polygons) is a strip across its slab (``_without_strip_cuts``); the independent checker
 #: counts patches more than 500 times longer than wide
 _STRIP = 200.0
+#: a cell with a collapsed rung (a loop's tip) whose other rung is longer than this many times its
+#: width (its farthest point from that rung) is a needle cap (``_caps``)
+_NEEDLE = 50.0
 
 
 def _side_lengths(p: Patch) -> list[float]:
@@ -2141,6 +2144,34 @@ def _bands(fr: FaceResult, sliver: float) -> list[Patch]:
     """The face's patches that are strips the other way: rungs wider than a sliver and more than
     ``_STRIP`` times shorter than bottom and top (two cuts close in v across the cell)."""
     return _long_thin(fr, sliver, (2, 3))
+
+
+def _caps(fr: FaceResult, thin: float, ueps: float, veps: float) -> list[tuple[Patch, int]]:
+    """The face's needle caps, each as (patch, end): a cell whose bottom and top are edge pieces that
+    meet at its ``end`` (0: s = 0, -1: s = 1; the rung there is one point, the tip of a loop at its
+    u-extremum), and that lies within ``thin`` of its other rung all over, or within ``1 / _NEEDLE``
+    of that rung's length. A slab line a hair short of the tip makes one
+    (occt__bug24595_281390.stp face 3: 0.051 long, 3.9e-4 wide, the line 1e-5 in u from the
+    extremum, through two plan cuts of the cylinder beside it). The build remakes a cap as a quad
+    with two flat corners, the tip and the middle of the rung (``core.triangle``), which here stood
+    3.9e-4 apart: a bow-tie, and the mesher's triangles in it had two corners at one node."""
+    from .topology import _grid_points, project, side_row
+
+    out = []
+    for p in fr.patches:
+        if p.bottom.iso or p.top.iso or p.bottom.edge is None or p.top.edge is None:
+            continue
+        for end in (0, -1):
+            b = p.bottom.H[end, :2] / p.bottom.H[end, 2]
+            t = p.top.H[end, :2] / p.top.H[end, 2]
+            if abs(b[0] - t[0]) > 2 * ueps or abs(b[1] - t[1]) > veps:
+                continue
+            rung = side_row(p.ctrl, p.rational, "left" if end == -1 else "right")
+            width = project(rung, _grid_points(p.ctrl, p.rational, 9))[1].max()
+            if width <= thin or _NEEDLE * width < _side_lengths(p)[2 if end == -1 else 3]:
+                out.append((p, end))
+            break
+    return out
 
 
 def _drop_free_cut(drops: dict[int, set[float]], free: dict[int, set[float]], model: Model, e: int,
@@ -2214,7 +2245,8 @@ def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], f
         return fr, {}
     strips = _strips(fr, g.sliver)
     bands = _bands(fr, g.sliver)
-    if not strips and not bands:
+    caps = _caps(fr, g.thin, g.ueps_lines, g.veps)
+    if not strips and not bands and not caps:
         return fr, {}
     try:
         free = _droppable_cuts(face, model, plan, g)
@@ -2228,10 +2260,15 @@ def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], f
                 continue
             for w in (side.w0, side.w1):
                 _drop_free_cut(drops, free, model, side.edge, w)
+    for p, end in caps:  # the cuts at the rung away from the tip
+        for side in (p.bottom, p.top):
+            if side.edge in free:
+                _drop_free_cut(drops, free, model, side.edge, side.w1 if end == 0 else side.w0)
     if not drops:
         return fr, {}
     again = _face_or_problem(face, model, _plan_without(plan, drops), tol, g)
-    fewer = len(_strips(again, g.sliver)) + len(_bands(again, g.sliver)) < len(strips) + len(bands)
+    fewer = (len(_strips(again, g.sliver)) + len(_bands(again, g.sliver))
+             + len(_caps(again, g.thin, g.ueps_lines, g.veps)) < len(strips) + len(bands) + len(caps))
     if (again.problems or not fewer or len(again.patches) > len(fr.patches)
             or _unshared_rungs(again, slide) > _unshared_rungs(fr, slide)):
         return fr, {}
