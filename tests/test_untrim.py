@@ -947,6 +947,14 @@ def test_a_cell_runs_through_a_slab_line_that_only_other_pieces_end_on():
     assert sorted(round(ub - ua, 9) for ua, ub, _, _ in cells) == [0.2] * 4 + [0.3] * 6
 
 
+def _defects(fr, g) -> int:
+    """Strips, bands and needle caps of a face's cells: what ``_without_strip_cuts`` makes fewer."""
+    from watertight_cli.untrim import _bands, _caps, _strips
+
+    caps = _caps(fr, g.thin, g.ueps_lines, g.veps)
+    return len(_strips(fr, g.sliver)) + len(_bands(fr, g.sliver)) + len(caps)
+
+
 def test_plan_cuts_that_end_strips_are_left_out(converted):
     """bspline_boolean's faces: plan cuts that only a neighbour needs stood close in u to a knot
     line or a vertex, and each made a strip across its slab (face 0: 19 of 176 patches more than 500
@@ -954,7 +962,7 @@ def test_plan_cuts_that_end_strips_are_left_out(converted):
     of the face where that leaves fewer strips: its side runs through them (the neighbour's corner
     is a T-vertex on it). The faces keep every cut they need themselves, and stage 2 fits no curve
     with a break at a cut some face left out."""
-    from watertight_cli.untrim import _bands, _droppable_cuts, _face_or_problem, _FaceGeometry, _strips
+    from watertight_cli.untrim import _droppable_cuts, _face_or_problem, _FaceGeometry
 
     ins, res, check = converted["bspline_boolean.step"]
     assert check.ok
@@ -965,8 +973,7 @@ def test_plan_cuts_that_end_strips_are_left_out(converted):
         face = m.faces[fr.face]
         g = _FaceGeometry(face, m.diagonal, TOL)
         full = _face_or_problem(face, m, res.plan, TOL, g)
-        assert len(_strips(fr, g.sliver)) + len(_bands(fr, g.sliver)) < len(_strips(full, g.sliver)) + len(
-            _bands(full, g.sliver))
+        assert _defects(fr, g) < _defects(full, g)
         free = _droppable_cuts(face, m, res.plan, g)
         for e, ws in res.own_cuts[fr.face].items():
             assert ws <= free.get(e, set())  # only cuts the face itself does not need
@@ -1038,14 +1045,7 @@ def test_plan_cuts_that_end_bands_are_left_out():
     Such a neighbour's cut is left out of the face where that leaves fewer strips and bands; the
     face keeps every cut it needs itself. About ten seconds."""
     from watertight_cli.inspect import inspect
-    from watertight_cli.untrim import (
-        _bands,
-        _droppable_cuts,
-        _face_or_problem,
-        _FaceGeometry,
-        _strips,
-        untrim,
-    )
+    from watertight_cli.untrim import _bands, _droppable_cuts, _face_or_problem, _FaceGeometry, untrim
 
     m = inspect(str(corpus_path("occt__ec_turbine-A.stp")), TOL, array_gaps=False).model
     res = untrim(m, TOL)
@@ -1056,8 +1056,7 @@ def test_plan_cuts_that_end_bands_are_left_out():
         face = m.faces[fr.face]
         g = _FaceGeometry(face, m.diagonal, TOL)
         full = _face_or_problem(face, m, res.plan, TOL, g)
-        assert len(_strips(fr, g.sliver)) + len(_bands(fr, g.sliver)) < len(_strips(full, g.sliver)) + len(
-            _bands(full, g.sliver))
+        assert _defects(fr, g) < _defects(full, g)
         before += len(_bands(full, g.sliver))
         after += len(_bands(fr, g.sliver))
         free = _droppable_cuts(face, m, res.plan, g)
@@ -1066,6 +1065,70 @@ def test_plan_cuts_that_end_bands_are_left_out():
         if fr.face == 6:
             assert len(_bands(full, g.sliver)) >= 9 and not _bands(fr, g.sliver)
     assert after < before / 2
+
+
+def _needle(width: float, meet: bool = True, iso: bool = False):
+    """A cell of edge 1 whose bottom and top meet at s = 1 (a loop's tip, when ``meet``), as a
+    bilinear triangle in 3D: its left rung runs from (0, 0, 0) to (0, 1, 0), its tip stands
+    ``width`` off the rung's middle."""
+    from watertight_cli.untrim import Patch, Side
+
+    tip = np.array([width, 0.5, 0.0])
+    ctrl = np.array([[[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [tip, tip if meet else tip + [0.0, 0.1, 0.0]]])
+    bottom = Side(np.array([[0.2, 0.1, 1.0], [0.3, 0.5, 1.0]]), iso, None if iso else 1, 0.4, 0.5)
+    top = Side(np.array([[0.2, 0.9, 1.0], [0.3, 0.5 if meet else 0.6, 1.0]]), False, 1, 0.6, 0.5)
+    return Patch(0, ctrl, False, bottom, top)
+
+
+def test_a_cap_is_a_needle_when_thin_or_slender():
+    """``_caps``: a cell whose bottom and top are edge pieces meeting at one end is a needle cap
+    when it lies within ``thin`` of its other rung, or when that rung is more than ``_NEEDLE`` times
+    longer than the cell is wide; a fat cap, a cell whose sides do not meet, and one with an iso
+    side are not."""
+    from watertight_cli.untrim import _NEEDLE, FaceResult, _caps
+
+    def caps(*patches, thin=1e-9):
+        return _caps(FaceResult(0, patches=list(patches)), thin, 1e-12, 1e-12)
+
+    slender = _needle(0.5 / _NEEDLE)
+    assert [(p, end) for p, end in caps(slender)] == [(slender, -1)]
+    assert not caps(_needle(2.0 / _NEEDLE))  # fat: the build's quad has its flat corners apart
+    assert len(caps(_needle(2.0 / _NEEDLE), thin=0.1)) == 1  # within thin
+    assert not caps(_needle(1e-4, meet=False))
+    assert not caps(_needle(1e-4, iso=True))
+
+
+def test_plan_cuts_that_end_needle_caps_are_left_out():
+    """occt__bug24595_281390.stp face 3: a slab line 1e-5 in u short of the tip of edge 6 (its
+    u-extremum), through a plan cut of the cylinder beside it, left a cap 0.051 long and 3.9e-4
+    wide; its quads had corners on one line and the read-back mesh two-corner triangles. Without
+    that cut (only the cylinder needs it) the cap reaches the next slab line; the face keeps every
+    cut it needs itself."""
+    from watertight_cli.inspect import inspect
+    from watertight_cli.untrim import (
+        RUNG_SLIDE,
+        _caps,
+        _droppable_cuts,
+        _face_or_problem,
+        _FaceGeometry,
+        _without_strip_cuts,
+        edge_plan,
+    )
+
+    m = inspect(str(corpus_path("occt__bug24595_281390.stp")), TOL, array_gaps=False).model
+    geoms = [_FaceGeometry(face, m.diagonal, TOL) for face in m.faces]
+    plan = edge_plan(m, geoms, TOL.sliver_rel * m.diagonal, max(TOL.thin_rel, TOL.sliver_rel) * m.diagonal)
+    face, g = m.faces[3], geoms[3]
+    full = _face_or_problem(face, m, plan, TOL, g)
+    before = _caps(full, g.thin, g.ueps_lines, g.veps)
+    assert any(p.bottom.edge == 6 for p, _ in before)
+    fr, drops = _without_strip_cuts(face, m, plan, full, TOL, g, RUNG_SLIDE * TOL.approx_rel * m.diagonal)
+    assert 6 in drops and not fr.problems
+    assert not any(p.bottom.edge == 6 for p, _ in _caps(fr, g.thin, g.ueps_lines, g.veps))
+    assert len(fr.patches) <= len(full.patches)
+    free = _droppable_cuts(face, m, plan, g)
+    for e, ws in drops.items():
+        assert ws <= free[e]
 
 
 def test_wedges_at_a_pole_are_one_cap_per_span(converted):
