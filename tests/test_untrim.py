@@ -1148,3 +1148,26 @@ def test_wedges_at_a_pole_are_one_cap_per_span(converted):
         assert len(wedges) == 4, k
         widths = sorted(float(np.ptp(p.bottom.H[:, 0] / p.bottom.H[:, 2])) for p in wedges)
         assert widths == pytest.approx([np.pi / 2] * 4)
+
+
+def _dip(t0: float, a: float) -> np.ndarray:
+    """A quadratic piece running in u from 0 to 1 with v = a (t - t0)^2: lowest at t = t0."""
+    v = [a * t0 * t0, a * t0 * (t0 - 1.0), a * (1.0 - t0) ** 2]
+    return np.array([[0.0, v[0], 1.0], [0.5, v[1], 1.0], [1.0, v[2], 1.0]])
+
+
+@pytest.mark.parametrize("t0", [0.999, 0.001])
+def test_an_extremum_that_turns_back_by_noise_before_an_end_is_no_cut(t0):
+    """fusee face 44: edge 253 runs nearly along v = const and dips 1.4e-11 in v 1e-8 in u before
+    its end (the face's corner); cut there, a strip 6.5e-6 wide and 25.8 long. An extremum whose
+    value differs from the nearer end's by at most the noise threshold, with no extremum between,
+    is no cut; a deeper one, or one well inside the piece, is."""
+    from watertight_cli.untrim import _extrema
+
+    H = _dip(t0, 1e-6)  # comes back by 1e-12 between the dip and the end
+    assert _extrema(H, 1, 1e-11) == []
+    (r,) = _extrema(H, 1, 1e-13)
+    assert r == pytest.approx(t0, abs=1e-9)
+    (r,) = _extrema(_dip(0.5, 1e-6), 1, 1e-11)  # comes back by 2.5e-7 to either end
+    assert r == pytest.approx(0.5, abs=1e-9)
+    assert _extrema(_dip(0.5, 1e-6), 0, 1e-11) == []  # u is monotone

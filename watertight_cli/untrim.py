@@ -265,6 +265,32 @@ def _extremum_fn(H: np.ndarray, axis: int):
     return f
 
 
+def _extrema(H: np.ndarray, axis: int, eps: float) -> list[float]:
+    """Parameters in (0, 1) of the extrema of a piece's coordinate ``axis`` (none where it varies by
+    at most ``eps``), without an end's noise: the extremum nearest an end, with no other between,
+    where the coordinate there differs from that end's by at most ``eps`` (the piece overshoots
+    and comes back by less than what ``_FaceGeometry`` calls noise). gmsh__917_fusee.stp face 44:
+    edge 253 runs nearly along v = const and dips 1.4e-11 in v (3e-8 in 3D) 1e-8 in u (6.5e-6 in
+    3D) before its end, the face's corner; cut there, the slab line through the dip bounded a
+    strip that wide and 25.8 long, which stage 2 closed into a triangle at one end."""
+    X = H[:, axis] / H[:, 2]
+    if np.ptp(X) <= eps:
+        return []
+    rs = _roots(_extremum_fn(H, axis))
+    if not rs:
+        return rs
+
+    def at(t: float) -> float:
+        h = basis(len(H) - 1, np.array([t]))[0] @ H
+        return float(h[axis] / h[2])
+
+    if abs(at(rs[0]) - X[0]) <= eps:
+        rs = rs[1:]
+    if rs and abs(at(rs[-1]) - X[-1]) <= eps:
+        rs = rs[:-1]
+    return rs
+
+
 class _Lazy:
     """A function of one float made on its first call: the scalar forms for Brent's method are
     needed only where the grid finds a sign change (861 of 62399 functions made in stage 1 of
@@ -363,23 +389,35 @@ def _span_pieces(ce: _Coedge, params: np.ndarray):
         yield float(w0), float(w1), H
 
 
-def _needs(ce: _Coedge, surface_breaks: tuple[np.ndarray, np.ndarray], eps=(0.0, 0.0)) -> list[float]:
+def _needs(ce: _Coedge, surface_breaks: tuple[np.ndarray, np.ndarray], eps=(0.0, 0.0),
+           flat=(0.0, 0.0)) -> list[float]:
     """Edge parameters this face needs on the coedge: pcurve knots, knot-line crossings, extrema.
 
     eps : (u, v) below which a coordinate's variation over a span is noise (see ``_FaceGeometry``):
-    a pcurve that runs along an iso-line with 1e-11 wiggles has no extrema worth a cut."""
+    a pcurve that runs along an iso-line with 1e-11 wiggles has no extrema worth a cut.
+    flat : (u, v) half-widths of the band within which ``_flatten`` lays the whole coedge on an
+    iso-line (``_FaceGeometry.flat``); its extrema in that coordinate are then wiggles that the
+    flattening takes out, and no cut. gmsh__917_fusee.stp face 44: edge 253 runs along v = const
+    with a 6.5e-11 wiggle in v whose extremum stood 1e-8 in u (6.5e-6 in 3D) from the face's
+    corner; the slab line through it cut a strip that wide and 25.8 long, which stage 2 closed
+    into a triangle at one end and the build remade as a needle."""
     out: list[float] = []
-    for w0, w1, H in _span_pieces(ce, np.array([])):
+    pieces = list(_span_pieces(ce, np.array([])))
+    if pieces:
+        uv = np.concatenate([H[:, :2] / H[:, 2:3] for _, _, H in pieces])
+        laid = [0.5 * np.ptp(uv[:, a]) <= flat[a] for a in (0, 1)]
+        if all(laid):
+            laid = [False, False]  # a point-like coedge: ``_flatten`` leaves it to the loop closing
+    for w0, w1, H in pieces:
         out.append(w0)
         uv = H[:, :2] / H[:, 2:3]
-        fns = [_extremum_fn(H, a) for a in (0, 1) if np.ptp(uv[:, a]) > eps[a]]
+        rs = [r for a in (0, 1) if not laid[a] for r in _extrema(H, a, eps[a])]
         for axis in (0, 1):
             lo, hi = uv[:, axis].min(), uv[:, axis].max()
             for c in surface_breaks[axis]:
                 if lo < c < hi:
-                    fns.append(_coord_fn(H, axis, c))
-        for f in fns:
-            out.extend(w0 + r * (w1 - w0) for r in _roots(f))
+                    rs.extend(_roots(_coord_fn(H, axis, c)))
+        out.extend(w0 + r * (w1 - w0) for r in rs)
     return out
 
 
@@ -420,6 +458,9 @@ class _FaceGeometry:
         self.diagonal = diagonal
         self.thin = max(tol.thin_rel * diagonal, self.sliver)
         self.breaks = (_interior_breaks(s.uknots, s.udegree), _interior_breaks(s.vknots, s.vdegree))
+        # the half-widths (u, v) within which ``_face_pieces`` flattens a coedge onto an iso-line
+        budget = _FLATTEN * tol.approx_rel * diagonal
+        self.flat = (budget / su if su > 0 else 0.0, budget / sv if sv > 0 else 0.0)
 
     def speed_over(self, points: np.ndarray) -> np.ndarray:
         """Bounds of (|dS/du|, |dS/dv|) over the spans that the bounding box of uv ``points`` meets
@@ -442,7 +483,7 @@ def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
         for ce in _coedges(face, model):
             if ce.degenerate:
                 continue
-            raw.setdefault(ce.edge, []).extend(_needs(ce, g.breaks, (g.ueps, g.veps)))
+            raw.setdefault(ce.edge, []).extend(_needs(ce, g.breaks, (g.ueps, g.veps), g.flat))
             own.setdefault(ce.edge, set()).update(float(x) for x in ce.breaks[1:-1])
     plan = {}
     for e, vals in raw.items():
@@ -1927,8 +1968,7 @@ def _monotone(p: _Piece, eps) -> list[_Piece]:
     """The piece cut at the u- and v-extrema inside it. The edge plan cut every pcurve at its
     extrema already; closing a loop moves an end control point, which can turn a short piece back
     near its end, so the closed pieces are checked again (face-local cuts)."""
-    uv = p.H[:, :2] / p.H[:, 2:3]
-    ts = sorted({r for a in (0, 1) if np.ptp(uv[:, a]) > eps[a] for r in _roots(_extremum_fn(p.H, a))})
+    ts = sorted({r for a in (0, 1) for r in _extrema(p.H, a, eps[a])})
     out, rest, t0 = [], p, 0.0
     for t in ts:
         tl = (t - t0) / (1.0 - t0)
@@ -2219,7 +2259,7 @@ def _droppable_cuts(face: Face, model: Model, plan: dict[int, np.ndarray],
         if ce.degenerate or edge.curve is None or not len(P) or uses[ce.edge] > 1:
             continue
         anchors = np.concatenate([[edge.first], P, [edge.last]])
-        needs = _needs(ce, g.breaks, (g.ueps, g.veps)) + list(_interior_breaks(edge.curve.knots,
+        needs = _needs(ce, g.breaks, (g.ueps, g.veps), g.flat) + list(_interior_breaks(edge.curve.knots,
                                                                                 edge.curve.degree))
         served = {int(np.argmin(np.abs(anchors - w))) for w in needs}
         free = {float(w) for k, w in enumerate(P, start=1) if k not in served}
