@@ -369,8 +369,8 @@ def test_transposed_face_is_the_same_face():
 
 def test_plan_cuts_put_every_rung_along_an_edge_on_one_plan_piece():
     """A cell whose rung runs along a u-iso edge is cut at that edge's plan parameters, so each
-    rung lies on one piece and can take the edge's curve in stage 2. plate_with_holes has two
-    rungs that span a plan cut when only vertices cut them."""
+    rung lies on one piece and can take the edge's curve in stage 2. filleted_freeform has rungs
+    that span a plan cut when only vertices cut them."""
     from watertight_cli.inspect import inspect
     from watertight_cli.substitute import _rung_ref
     from watertight_cli.untrim import _FaceGeometry, _unshared_rungs, edge_plan, untrim, untrim_face
@@ -390,14 +390,18 @@ def test_plan_cuts_put_every_rung_along_an_edge_on_one_plan_piece():
                 if on:
                     along += 1
                     shared += _rung_ref(fr.iso_pieces, a, b, eps) is not None
-    assert along >= 20 and shared == along
-    # the count that turning decides by agrees: none left here, two with vertex cuts only
+    assert along >= 18 and shared == along  # 18 since the plan's noise extrema went (``_extrema``)
+    # the count that turning decides by agrees: none left here; with vertex cuts only,
+    # filleted_freeform leaves rungs that span a plan cut (11 at d442458; plate_with_holes left two
+    # until the plan stopped cutting at noise extrema, ``_extrema``), and none with plan cuts
     assert sum(_unshared_rungs(fr, 0.0) for fr in res.faces) == 0
+    model = inspect(str(fixture_path("filleted_freeform.step")), TOL, array_gaps=False).model
     faces = [_FaceGeometry(f, model.diagonal, TOL) for f in model.faces]
     plan = edge_plan(model, faces, TOL.sliver_rel * model.diagonal)
-    left = sum(_unshared_rungs(untrim_face(f, model, plan, TOL, g, "vertices"), 0.0)
-               for f, g in zip(model.faces, faces, strict=True))
-    assert left == 2
+    for cuts, unshared in (("vertices", lambda n: n > 0), ("plan", lambda n: n == 0)):
+        left = sum(_unshared_rungs(untrim_face(f, model, plan, TOL, g, cuts), 0.0)
+                   for f, g in zip(model.faces, faces, strict=True))
+        assert unshared(left), (cuts, left)
 
 
 def test_slab_lines_closer_than_a_sliver_in_3d_merge():
@@ -773,20 +777,23 @@ def test_a_cusp_tail_ends_at_the_farthest_corner_pair_within_the_joining_distanc
 
 
 def test_cusps_of_a_real_file_are_cut_into_every_face_of_their_edges():
-    """gmsh__U_Joint_2.stp: at 12 cusps a wedge face narrows to nothing between two tangent edges, its
-    cells near the tip are dropped as flat, and the faces beyond met each other there 2.6e-9 apart
-    (I2's goal missed). Stage 1 finds each cusp's tail and puts its far end into the edge plan,
-    so every face on both edges has a corner there, and stage 2 gives both tails one curve."""
+    """Where a wedge face narrows to nothing between two tangent edges, its cells near the tip were
+    dropped as flat and the faces beyond met each other 2.6e-9 apart (gmsh__U_Joint_2.stp, 12 such
+    cusps; I2's goal missed). Stage 1 finds each cusp's (or crossing's) tail and puts its far end
+    into the edge plan, so every face on both edges has a corner there, and stage 2 gives both
+    tails one curve. Since the plan no longer cuts at extrema that turn back by noise before an
+    edge's end (``_extrema``), U_Joint's tips hold no cell to drop and it has no tail; fusee still
+    has three. About a minute and a half."""
     from watertight_cli.inspect import inspect
     from watertight_cli.sameparam import retime
     from watertight_cli.substitute import IsoPieces, _refs
     from watertight_cli.untrim import RUNG_SLIDE, crossing_tails, untrim
 
-    model = inspect(str(corpus_path("gmsh__U_Joint_2.stp")), TOL, array_gaps=False).model
+    model = inspect(str(corpus_path("gmsh__917_fusee.stp")), TOL, array_gaps=False).model
     retime(model, TOL)
     res = untrim(model, TOL)
     tails = {t for fr in res.faces for t in crossing_tails(model, fr)}
-    assert len(tails) >= 12
+    assert len(tails) >= 3
     slide = RUNG_SLIDE * TOL.approx_rel * model.diagonal
     corners: dict[int, dict[int, set[float]]] = {}
     for fr in res.faces:
@@ -1063,8 +1070,10 @@ def test_plan_cuts_that_end_bands_are_left_out():
         for e, ws in res.own_cuts[fr.face].items():
             assert ws <= free.get(e, set())
         if fr.face == 6:
-            assert len(_bands(full, g.sliver)) >= 9 and not _bands(fr, g.sliver)
-    assert after < before / 2
+            assert len(_bands(full, g.sliver)) >= 4 and not _bands(fr, g.sliver)
+    # 34 -> 19 at d442458, face 6 4 -> 0 (it had nine before the plan stopped cutting at extrema
+    # that turn back by noise before a piece's end, ``_extrema``)
+    assert after < 0.6 * before
 
 
 def _needle(width: float, meet: bool = True, iso: bool = False):
