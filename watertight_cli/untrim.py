@@ -397,10 +397,8 @@ def _needs(ce: _Coedge, surface_breaks: tuple[np.ndarray, np.ndarray], eps=(0.0,
     a pcurve that runs along an iso-line with 1e-11 wiggles has no extrema worth a cut.
     flat : (u, v) half-widths of the band within which ``_flatten`` lays the whole coedge on an
     iso-line (``_FaceGeometry.flat``); its extrema in that coordinate are then wiggles that the
-    flattening takes out, and no cut. gmsh__917_fusee.stp face 44: edge 253 runs along v = const
-    with a 6.5e-11 wiggle in v whose extremum stood 1e-8 in u (6.5e-6 in 3D) from the face's
-    corner; the slab line through it cut a strip that wide and 25.8 long, which stage 2 closed
-    into a triangle at one end and the build remade as a needle."""
+    flattening takes out, and no cut. Extrema that turn back by noise before a piece's end are no
+    cut either (``_extrema``)."""
     out: list[float] = []
     pieces = list(_span_pieces(ce, np.array([])))
     if pieces:
@@ -2280,7 +2278,8 @@ def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], f
     than 500 times, 0.04 x 75 beside its knot line u = 0.25). Without the cut the face's side runs
     through the parameter; the neighbour's corner there is a T-vertex on that side, which stage 2
     makes a subdivision point of the shared curve (the side takes the edge's curve over both plan
-    pieces: no break of the curve lies between them)."""
+    pieces: no break of the curve lies between them). The cuts at the far rung of a needle cap
+    (``_caps``) are left out in the same way, so the cap reaches the next slab line."""
     if fr.problems:
         return fr, {}
     strips = _strips(fr, g.sliver)
