@@ -954,14 +954,6 @@ def test_a_cell_runs_through_a_slab_line_that_only_other_pieces_end_on():
     assert sorted(round(ub - ua, 9) for ua, ub, _, _ in cells) == [0.2] * 4 + [0.3] * 6
 
 
-def _defects(fr, g) -> int:
-    """Strips, bands and needle caps of a face's cells: what ``_without_strip_cuts`` makes fewer."""
-    from watertight_cli.untrim import _bands, _caps, _strips
-
-    caps = _caps(fr, g.thin, g.ueps_lines, g.veps)
-    return len(_strips(fr, g.sliver)) + len(_bands(fr, g.sliver)) + len(caps)
-
-
 def test_plan_cuts_that_end_strips_are_left_out(converted):
     """bspline_boolean's faces: plan cuts that only a neighbour needs stood close in u to a knot
     line or a vertex, and each made a strip across its slab (face 0: 19 of 176 patches more than 500
@@ -969,7 +961,7 @@ def test_plan_cuts_that_end_strips_are_left_out(converted):
     of the face where that leaves fewer strips: its side runs through them (the neighbour's corner
     is a T-vertex on it). The faces keep every cut they need themselves, and stage 2 fits no curve
     with a break at a cut some face left out."""
-    from watertight_cli.untrim import _droppable_cuts, _face_or_problem, _FaceGeometry
+    from watertight_cli.untrim import _defects, _droppable_cuts, _face_or_problem, _FaceGeometry
 
     ins, res, check = converted["bspline_boolean.step"]
     assert check.ok
@@ -1052,7 +1044,14 @@ def test_plan_cuts_that_end_bands_are_left_out():
     Such a neighbour's cut is left out of the face where that leaves fewer strips and bands; the
     face keeps every cut it needs itself. About ten seconds."""
     from watertight_cli.inspect import inspect
-    from watertight_cli.untrim import _bands, _droppable_cuts, _face_or_problem, _FaceGeometry, untrim
+    from watertight_cli.untrim import (
+        _bands,
+        _defects,
+        _droppable_cuts,
+        _face_or_problem,
+        _FaceGeometry,
+        untrim,
+    )
 
     m = inspect(str(corpus_path("occt__ec_turbine-A.stp")), TOL, array_gaps=False).model
     res = untrim(m, TOL)

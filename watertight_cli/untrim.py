@@ -2212,6 +2212,13 @@ def _caps(fr: FaceResult, thin: float, ueps: float, veps: float) -> list[tuple[P
     return out
 
 
+def _defects(fr: FaceResult, g: _FaceGeometry) -> int:
+    """Strips, bands and needle caps among the face's cells: what ``_without_strip_cuts`` makes
+    fewer."""
+    caps = _caps(fr, g.thin, g.ueps_lines, g.veps)
+    return len(_strips(fr, g.sliver)) + len(_bands(fr, g.sliver)) + len(caps)
+
+
 def _drop_free_cut(drops: dict[int, set[float]], free: dict[int, set[float]], model: Model, e: int,
                    w: float) -> None:
     """Add to ``drops`` the plan cut of ``free`` on edge ``e`` at parameter ``w`` (to 1e-9 of the
@@ -2306,8 +2313,7 @@ def _without_strip_cuts(face: Face, model: Model, plan: dict[int, np.ndarray], f
     if not drops:
         return fr, {}
     again = _face_or_problem(face, model, _plan_without(plan, drops), tol, g)
-    fewer = (len(_strips(again, g.sliver)) + len(_bands(again, g.sliver))
-             + len(_caps(again, g.thin, g.ueps_lines, g.veps)) < len(strips) + len(bands) + len(caps))
+    fewer = _defects(again, g) < len(strips) + len(bands) + len(caps)
     if (again.problems or not fewer or len(again.patches) > len(fr.patches)
             or _unshared_rungs(again, slide) > _unshared_rungs(fr, slide)):
         return fr, {}
