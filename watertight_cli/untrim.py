@@ -165,6 +165,7 @@ class FaceResult:
     closure: float = 0.0  # deviation bound of closing the loops' uv gaps and snapping (model units)
     flattened: float = 0.0  # the part of ``closure`` spent on flattening near-iso pcurves (_flatten)
     snapped: int = 0  # pieces treated as iso-lines though they wiggle (by less than the snap)
+    wraps: int = 0  # u-extrema of pcurves wrapped by turned cells instead of cut by a slab line (``wrap``)
     slivers: int = 0  # pieces narrower than a sliver (Tolerances.sliver_rel) left on a slab line
     problems: list[str] = field(default_factory=list)
     # pieces that lie on a slab line (u-iso): the rungs of the cells beside them are on their edges
@@ -475,6 +476,8 @@ def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
               thin: float = 0.0) -> dict[int, np.ndarray]:
     """Every non-degenerate edge's sorted split parameters, agreed by all its faces (see module doc).
     ``sliver``, ``thin``: see ``_thin_plan``."""
+    from .wrap import wrap_sites
+
     raw: dict[int, list[float]] = {}
     own: dict[int, set[float]] = {}  # per edge, the knots of its faces' pcurves
     for face, g in zip(model.faces, geoms, strict=True):
@@ -483,6 +486,8 @@ def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
                 continue
             raw.setdefault(ce.edge, []).extend(_needs(ce, g.breaks, (g.ueps, g.veps), g.flat))
             own.setdefault(ce.edge, set()).update(float(x) for x in ce.breaks[1:-1])
+        for e, sites in wrap_sites(face, model, g).items():  # the ends of the arcs to wrap
+            raw[e].extend(w for lo, _, hi in sites for w in (lo, hi))
     plan = {}
     for e, vals in raw.items():
         edge = model.edges[e]
@@ -527,20 +532,21 @@ class _Piece:
     w1: float
     degenerate: bool
     pcurve: BSplineCurve | None = None
+    virtual: bool = False  # a side of a wrap's notch (``wrap.wrapped``), no part of the loops
 
 
 def _orient_u(p: _Piece) -> _Piece:
     """The same piece running with u increasing."""
     if p.H[-1, 0] / p.H[-1, 2] >= p.H[0, 0] / p.H[0, 2]:
         return p
-    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate, p.pcurve)
+    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate, p.pcurve, p.virtual)
 
 
 def _split(p: _Piece, t: float) -> tuple[_Piece, _Piece]:
     w = p.w0 + t * (p.w1 - p.w0)
     return (
-        _Piece(curve_segment(p.H, 0.0, t), p.edge, p.w0, w, p.degenerate, p.pcurve),
-        _Piece(curve_segment(p.H, t, 1.0), p.edge, w, p.w1, p.degenerate, p.pcurve),
+        _Piece(curve_segment(p.H, 0.0, t), p.edge, p.w0, w, p.degenerate, p.pcurve, p.virtual),
+        _Piece(curve_segment(p.H, t, 1.0), p.edge, w, p.w1, p.degenerate, p.pcurve, p.virtual),
     )
 
 
@@ -677,10 +683,11 @@ def _as_side(p: _Piece, veps: float) -> Side:
 
 
 def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, rung_cuts: str = "plan",
-           plan: dict[int, np.ndarray] | None = None):
+           plan: dict[int, np.ndarray] | None = None, wrap_ends=()):
     """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc).
     ``plan``: the edge plan, which tells the ends of rung pieces at a plan parameter from those at
-    a knot of the face's own pcurve only (``_knot_cuts_dropped``)."""
+    a knot of the face's own pcurve only (``_knot_cuts_dropped``). ``wrap_ends``: (u, v) points on
+    slab lines where the wraps' turned cells end (``wrap.wrapped``); the cells beside are cut there."""
     ub, vb, ueps, veps = g.ub, g.vb, g.ueps_lines, g.veps
     ends_uv = np.array([p.H[k, :2] / p.H[k, 2] for p in pieces for k in (0, -1)])
     lo, hi = float(ends_uv[:, 0].min()), float(ends_uv[:, 0].max())
@@ -705,6 +712,8 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
         # oriented with u increasing, the piece runs from the lower of its two lines
         i, j = int(index[min(ends_at)]), int(index[max(ends_at)])
         if i == j:
+            if p.virtual:
+                continue  # a wrap's notch on its slab line: the cells beside it are cut at wrap_ends
             fr.iso_pieces.append(p)
             if b - a > g.ueps:
                 fr.slivers += 1  # narrower than a sliver: its strip is left to the neighbours
@@ -744,7 +753,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
                     planned.add(v)
     plan_only -= at_vertex
     knot_only = plan_only - planned  # ends at a knot of the pcurve that the plan thinned away
-    vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
+    vertex_ends = np.array((vertex_ends if rung_cuts != "none" else []) + list(wrap_ends)).reshape(-1, 2)
     # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
     # inside a neighbouring cell's rung a hair from its end: see _NEAR_END. A part from line a to
     # line b has its first point (k = 0) on line a and its last (k = 1) on line b
@@ -1990,11 +1999,18 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     fr.closure = move + flat
     fr.flattened = flat
     fr.approximated = bool(flat > g.snap)
+    from .wrap import turned_patches, wrap_sites, wrapped
+
+    pieces, wraps, wrap_ends = wrapped(face, pieces, wrap_sites(face, model, g), model, g)
+    fr.wraps = len(wrap_ends) - len(wraps)  # a wrap of n turned cells ends n + 1 of them
     reparam = 0.0
-    for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts, plan):
+    for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts, plan, wrap_ends):
         t = time.perf_counter()
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
         reparam += time.perf_counter() - t
+    t = time.perf_counter()
+    fr.patches.extend(turned_patches(face, wraps, model, tol, fr))
+    reparam += time.perf_counter() - t
     t = time.perf_counter()
     for p in fr.patches:
         # a sub-box is the surface's own span at its own degree: only composition writes degrees

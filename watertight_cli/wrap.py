@@ -1,0 +1,329 @@
+"""Wrap cells: no slab line through the u-extremum of a trimming curve (stage 1, numpy only).
+
+The slab decomposition of ``untrim`` puts a u-iso line through every u-extremum of a pcurve. There
+the line is tangent to the curve, so the cells on the far side of the line have a corner of zero
+angle at the extremum: two sides of one patch leave the tip together and part only as the square
+of the distance from it (plate_with_holes: the line x = -5 and the hole of radius 3 around
+(-2, 10), tangent at (-5, 10)). A patch like that has a singular parameterization at the corner,
+and any check that pairs boundary samples with the nearest other boundary (the independent
+checker's) finds the neighbour across the line nearer than the true partner across the curve.
+
+Where the material lies on the outer side of the bulge (a hole's leftmost point, not the leftmost
+point of an outer loop), the bulge is wrapped instead:
+
+- the edge plan cuts the curve where it has turned ``_TURN`` (45 degrees in 3D, by the span's speed
+  bounds) from the iso direction on either side of the extremum (``wrap_sites``), so the arc between
+  those cuts stays within 45 degrees of the u-iso direction;
+- the arc is replaced, for the slab decomposition, by a three-sided notch: a v-iso line from each of
+  its ends to the nearest slab line beyond the tip, and that slab line between them (``wrapped``);
+- the region between the notch and the arc is cut by v-iso lines through the arc's piece ends (the
+  tip among them) into cells turned by 90 degrees: their rungs are v-iso, their sides the arc piece
+  and the slab line. They are made in the transposed face (``untrim.transpose_face``) by the usual
+  ruled map and turned back (``turned_patches``).
+
+Every corner there then has an angle of at least about 45 degrees. A site is used only where the
+region is free of other pieces and lies in one span in u; otherwise the face keeps the slab line
+through the tip (the cuts the plan made for the site stay, as ordinary corners).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .core.bernstein import basis, product, scalar_fn
+from .model import Face, Model
+from .untrim import (
+    Patch,
+    Side,
+    _coedges,
+    _coord_fn,
+    _deriv_h,
+    _eval,
+    _extrema,
+    _FaceContext,
+    _FaceGeometry,
+    _Lazy,
+    _Piece,
+    _roots,
+    _span_pieces,
+    transpose_face,
+)
+
+__all__ = ["wrap_sites", "wrapped", "turned_patches"]
+
+#: tan of the angle from the u-iso direction at which a wrap's arc ends: 45 degrees, so that the
+#: corners at the arc's ends (the v-iso rung against the arc, the slab line beyond against the
+#: pcurve) both have about 45 degrees
+_TURN = 1.0
+#: a wrap's slab line stands at least this many ``ueps_lines`` from the tip
+_CLEAR = 4.0
+#: where ``_arc_cuts`` looks at the curve on both sides of a span break (share of each span)
+_NEAR = 1e-3
+
+
+def _turn_fn(H: np.ndarray, su: float, sv: float):
+    """f(t) = (u' su)^2 - (v' sv tan)^2 (times W^4): negative where the piece runs within the angle
+    ``_TURN`` of the u-iso direction, zero where it has turned that far."""
+    D = _deriv_h(H)
+    du = product(D[:, 0], H[:, 2]) - product(H[:, 0], D[:, 2])
+    dv = product(D[:, 1], H[:, 2]) - product(H[:, 1], D[:, 2])
+    coef = product(du, du) * su**2 - product(dv, dv) * (sv * _TURN) ** 2
+    k = len(coef) - 1
+
+    def f(t):
+        return basis(k, np.atleast_1d(t)) @ coef
+
+    f.scalar = _Lazy(lambda: scalar_fn(coef))
+    return f
+
+
+def _arc_cuts(ce, g: _FaceGeometry) -> list[tuple[float, float, float]]:
+    """(w before, w at the extremum, w after) for every interior u-extremum of a coedge, with the
+    points on both sides where the curve has turned ``_TURN`` from the u-iso direction, or where it
+    first reaches a u-knot line or the coedge's end (no other extremum of u between). Extrema
+    inside a pcurve span as ``_needs`` finds them (the same floats), and at a span break where the
+    curve turns back in u by more than ``ueps`` (a circle's quarter points)."""
+    pieces = list(_span_pieces(ce, np.array([])))
+    if not pieces:
+        return []
+    if 0.5 * np.ptp(np.concatenate([H[:, 0] / H[:, 2] for _, _, H in pieces])) <= g.flat[0]:
+        return []  # laid on a u-iso line by ``_flatten``: its extrema are no cuts
+    events = [(w0 + r * (w1 - w0), 0) for w0, w1, H in pieces for r in _extrema(H, 0, g.ueps)]
+    for (_, w, a), (_, _, b) in zip(pieces[:-1], pieces[1:], strict=True):
+        u = a[-1, 0] / a[-1, 2]
+        da = float(_eval(a, 1.0 - _NEAR)[0, 0]) - u  # both sides of the break, close to it
+        db = float(_eval(b, _NEAR)[0, 0]) - u
+        deep = min(abs(float(_eval(a, 0.5)[0, 0]) - u), abs(float(_eval(b, 0.5)[0, 0]) - u))
+        if da * db > 0 and deep > g.ueps:
+            events.append((w, 0))
+    if not events:
+        return []
+    events += [(pieces[0][0], 2), (pieces[-1][1], 2)]
+    for w0, w1, H in pieces:
+        uv = H[:, :2] / H[:, 2:3]
+        su, sv = g.speed_over(uv)
+        events += [(w0 + r * (w1 - w0), 1) for r in _roots(_turn_fn(H, su, sv))]
+        # an arc ends at a u-knot line it reaches first (``_needs`` cuts the curve there): the
+        # turned cells must lie in one span
+        lo, hi = uv[:, 0].min(), uv[:, 0].max()
+        events += [(w0 + r * (w1 - w0), 1) for c in g.breaks[0] if lo < c < hi
+                   for r in _roots(_coord_fn(H, 0, c))]
+    events.sort()
+    out = []
+    for k, (w, kind) in enumerate(events):
+        if kind == 0 and 0 < k < len(events) - 1 and events[k - 1][1] and events[k + 1][1]:
+            out.append((events[k - 1][0], w, events[k + 1][0]))
+    return out
+
+
+def _inside(spans: list[np.ndarray], q: np.ndarray, toward: float) -> bool:
+    """Whether uv point ``q`` lies in the face: the parity of the crossings of the ray from ``q``
+    along u (``toward`` -1 or +1) with the face's pcurve pieces (``spans``, homogeneous Bezier)."""
+    n = 0
+    for H in spans:
+        uv = H[:, :2] / H[:, 2:3]
+        if not uv[:, 1].min() < q[1] < uv[:, 1].max():
+            continue
+        if (uv[:, 0].max() - q[0]) * toward <= 0 and (uv[:, 0].min() - q[0]) * toward <= 0:
+            continue
+        coef = H[:, 1] - q[1] * H[:, 2]
+        k = H.shape[0] - 1
+
+        def f(t, coef=coef, k=k):
+            return basis(k, np.atleast_1d(t)) @ coef
+
+        for r in _roots(f):
+            n += (float(_eval(H, r)[0, 0]) - q[0]) * toward > 0
+    return n % 2 == 1
+
+
+def wrap_sites(face: Face, model: Model, g: _FaceGeometry) -> dict[int, list[tuple[float, float, float]]]:
+    """Per edge of the face, the (w before, w at the tip, w after) of the u-extrema to wrap: those
+    of ``_arc_cuts`` where the face lies beyond the tip (tested a little off the tip, between it
+    and the nearer cut's u). Seam edges are left alone (two pcurves of one edge in one face)."""
+    out: dict[int, list[tuple[float, float, float]]] = {}
+    spans = None
+    for ce in _coedges(face, model):
+        if ce.degenerate or model.edges[ce.edge].seam:
+            continue
+        for lo, w, hi in _arc_cuts(ce, g):
+            if spans is None:
+                spans = [H for c in _coedges(face, model) for _, _, H in _span_pieces(c, np.array([]))]
+            uv = ce.curve.evaluate(np.array([lo, w, hi]))
+            bulge = np.sign(uv[0, 0] - uv[1, 0])  # the arc lies towards +u (+1) or -u (-1) of the tip
+            if bulge == 0 or np.sign(uv[2, 0] - uv[1, 0]) != bulge:
+                continue
+            depth = min(abs(uv[0, 0] - uv[1, 0]), abs(uv[2, 0] - uv[1, 0]))
+            q = np.array([uv[1, 0] - 0.5 * bulge * depth, uv[1, 1] + 1e-3 * (uv[2, 1] - uv[0, 1])])
+            if _inside(spans, q, -bulge):
+                out.setdefault(ce.edge, []).append((lo, w, hi))
+    return out
+
+
+def _arc(pieces: list[_Piece], e: int, lo: float, w: float, hi: float, tw: float) -> list[int] | None:
+    """Indices of the pieces of edge ``e`` that make the arc from ``lo`` to ``hi``, ordered by w,
+    when they cover it end to end and one of them ends at the tip ``w``."""
+    idx = [k for k, p in enumerate(pieces) if p.edge == e and not p.degenerate
+           and min(p.w0, p.w1) >= lo - tw and max(p.w0, p.w1) <= hi + tw]
+    idx.sort(key=lambda k: min(pieces[k].w0, pieces[k].w1))
+    if not idx:
+        return None
+    ranges = [sorted((pieces[k].w0, pieces[k].w1)) for k in idx]
+    if abs(ranges[0][0] - lo) > tw or abs(ranges[-1][1] - hi) > tw:
+        return None
+    if any(abs(a[1] - b[0]) > tw for a, b in zip(ranges[:-1], ranges[1:], strict=True)):
+        return None
+    if not any(abs(r[1] - w) <= tw for r in ranges[:-1]):
+        return None
+    return idx
+
+
+def _up(p: _Piece) -> _Piece:
+    """The same piece running with v increasing."""
+    if p.H[-1, 1] / p.H[-1, 2] >= p.H[0, 1] / p.H[0, 2]:
+        return p
+    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate, p.pcurve)
+
+
+def _absorbed(arc: list[_Piece], veps: float) -> list[_Piece] | None:
+    """The arc (pieces running with v increasing, in order) with every piece no taller than
+    ``veps`` joined to its neighbour: the neighbour's end control point moves to the small piece's
+    far end (by at most about ``veps``, as loop closing moves ends) and takes its edge parameter.
+    sphere_cut_box: ``_monotone`` cut a piece 2.8e-13 long in w off an arc's first end. None when
+    no piece is taller."""
+    out = list(arc)
+    k = 0
+    while k < len(out):
+        p = out[k]
+        if p.H[-1, 1] / p.H[-1, 2] - p.H[0, 1] / p.H[0, 2] > veps:
+            k += 1
+            continue
+        if len(out) == 1:
+            return None
+        if k + 1 < len(out):  # into the next piece, at its start
+            q = out[k + 1]
+            H = q.H.copy()
+            H[0, :2] = p.H[0, :2] / p.H[0, 2] * H[0, 2]
+            out[k + 1] = _Piece(H, q.edge, p.w0, q.w1, q.degenerate, q.pcurve)
+        else:  # the last piece: into the previous one, at its end
+            q = out[k - 1]
+            H = q.H.copy()
+            H[-1, :2] = p.H[-1, :2] / p.H[-1, 2] * H[-1, 2]
+            out[k - 1] = _Piece(H, q.edge, q.w0, p.w1, q.degenerate, q.pcurve)
+        del out[k]
+    return out
+
+
+def _free(pieces: list[_Piece], skip: set[int], box: tuple[float, float, float, float], c: float,
+          veps: float) -> bool:
+    """No piece but those in ``skip`` enters the open box (u0, u1, v0, v1) (control polygons), and
+    none ends on the line u = c between v0 and v1."""
+    u0, u1, v0, v1 = box
+    for k, p in enumerate(pieces):
+        if k in skip:
+            continue
+        uv = p.H[:, :2] / p.H[:, 2:3]
+        if uv[:, 0].max() > u0 and uv[:, 0].min() < u1 and uv[:, 1].max() > v0 and uv[:, 1].min() < v1:
+            return False
+        for x in (uv[0], uv[-1]):
+            if x[0] == c and v0 - veps <= x[1] <= v1 + veps:
+                return False
+    return True
+
+
+def wrapped(face: Face, pieces: list[_Piece], sites: dict[int, list[tuple[float, float, float]]],
+            model: Model, g: _FaceGeometry):
+    """The face's pieces with each usable site's arc replaced by its notch (three pieces without an
+    edge, ``virtual``), the turned cells of the wraps as (c, side, arc piece running with v
+    increasing) with side +1 where the slab line ``c`` lies above the arc in u, and the (u, v) points
+    on the slab lines at which the cells beside the notch must be cut (the wraps' rung ends)."""
+    cells: list[tuple[float, int, _Piece]] = []
+    ends: list[tuple[float, float]] = []
+    if not sites:
+        return pieces, cells, ends
+    inner_u = [float(x) for x in g.ub[1:-1]]
+    for e, found in sorted(sites.items()):
+        edge = model.edges[e]
+        tw = 1e-9 * max(abs(edge.last - edge.first), 1e-300)
+        for lo, w, hi in found:
+            idx = _arc(pieces, e, lo, w, hi, tw)
+            if idx is None:
+                continue
+            arc = [_up(pieces[k]) for k in idx]
+            arc.sort(key=lambda p: p.H[0, 1] / p.H[0, 2])
+            arc = _absorbed(arc, g.veps)
+            if arc is None:
+                continue
+            vs = [float(arc[0].H[0, 1] / arc[0].H[0, 2])] + [float(p.H[-1, 1] / p.H[-1, 2]) for p in arc]
+            if any(b <= a for a, b in zip(vs[:-1], vs[1:], strict=True)):
+                continue  # not monotone in v along the arc
+            ends = np.array([arc[0].H[0]] + [p.H[-1] for p in arc])
+            us = ends[:, 0] / ends[:, 2]
+            ws = [arc[0].w0] + [p.w1 for p in arc]
+            k = int(np.argmin([abs(x - w) for x in ws]))
+            bulge = float(np.sign(us[0] - us[k]))  # +1: the arc lies towards +u of its tip
+            if not 0 < k < len(arc) or bulge == 0 or np.sign(us[-1] - us[k]) != bulge:
+                continue
+            tip, far = float(us[k]), float(us.max() if bulge > 0 else us.min())
+            margin = _CLEAR * g.ueps_lines
+            others = [float(x) for k, p in enumerate(pieces) if k not in idx
+                      for x in (p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2])]
+            cands = [x for x in others + inner_u if (tip - x) * bulge > margin]
+            if not cands:
+                continue
+            if any((x - tip) * bulge > 0 and (far - x) * bulge > 0 for x in inner_u):
+                continue  # the arc crosses a knot line: the turned cells would span two spans
+            # the slab line beyond the tip, or where something lies on it or before it, a new one
+            # between (as far from the tip as the arc is wide, at most halfway)
+            near = max(cands) if bulge > 0 else min(cands)
+            new = tip - bulge * min(abs(far - tip), 0.5 * abs(tip - near))
+            for c in (near, new) if abs(new - tip) > margin else (near,):
+                if _free(pieces, set(idx), (min(c, far), max(c, far), vs[0], vs[-1]), c, g.veps):
+                    break
+            else:
+                continue
+            pb = arc[0].H[0, :2] / arc[0].H[0, 2]
+            pa = arc[-1].H[-1, :2] / arc[-1].H[-1, 2]
+            notch = [np.array([[pb[0], pb[1], 1.0], [c, pb[1], 1.0]]),
+                     np.array([[c, pb[1], 1.0], [c, pa[1], 1.0]]),
+                     np.array([[c, pa[1], 1.0], [pa[0], pa[1], 1.0]])]
+            keep = [p for k, p in enumerate(pieces) if k not in idx]
+            pieces = keep + [_Piece(H, None, 0.0, 0.0, False, None, virtual=True) for H in notch]
+            side = -1 if bulge > 0 else 1
+            cells += [(c, side, p) for p in arc]
+            ends += [(c, v) for v in vs]
+    return pieces, cells, ends
+
+
+def _transposed_side(H: np.ndarray, edge, w0: float, w1: float) -> Side:
+    return Side(np.ascontiguousarray(H[:, [1, 0, 2]]), False, edge, w0, w1)
+
+
+def _turned_back(p: Patch, pcurve) -> Patch:
+    """A patch made in the transposed face, in the face's own uv: s reversed (the transposition
+    turned the orientation), sides swapped back to (u, v) and reversed with it."""
+    def side(sd: Side) -> Side:
+        H = np.ascontiguousarray(sd.H[::-1][:, [1, 0, 2]])
+        return Side(H, False, sd.edge, sd.w1, sd.w0, sd.degenerate, pcurve if sd.edge is not None else None)
+
+    return replace(p, ctrl=np.ascontiguousarray(p.ctrl[::-1]), bottom=side(p.bottom), top=side(p.top))
+
+
+def turned_patches(face: Face, cells, model: Model, tol, fr) -> list[Patch]:
+    """The patches of the wraps' turned cells (``wrapped``), made by the ruled map in the transposed
+    face and turned back."""
+    if not cells:
+        return []
+    turned = transpose_face(face)
+    gt = _FaceGeometry(turned, model.diagonal, tol)
+    ctx = _FaceContext(turned, gt, tol.approx_rel * model.diagonal, tol.max_degree)
+    out = []
+    for c, side, p in cells:
+        v0, v1 = float(p.H[0, 1] / p.H[0, 2]), float(p.H[-1, 1] / p.H[-1, 2])
+        line = Side(np.array([[v0, c, 1.0], [v1, c, 1.0]]), True)
+        arc = _transposed_side(p.H, p.edge, p.w0, p.w1)
+        bot, top = (line, arc) if side < 0 else (arc, line)
+        out += [_turned_back(q, p.pcurve) for q in ctx.cell_patches(v0, v1, bot, top, fr)]
+    return out
