@@ -486,8 +486,9 @@ def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
                 continue
             raw.setdefault(ce.edge, []).extend(_needs(ce, g.breaks, (g.ueps, g.veps), g.flat))
             own.setdefault(ce.edge, set()).update(float(x) for x in ce.breaks[1:-1])
-        for e, sites in wrap_sites(face, model, g).items():  # the ends of the arcs to wrap
-            raw[e].extend(w for lo, _, hi in sites for w in (lo, hi))
+        for intervals, _ in wrap_sites(face, model, g):  # the ends of the arcs to wrap
+            for e, lo, hi in intervals:
+                raw[e].extend((lo, hi))
     plan = {}
     for e, vals in raw.items():
         edge = model.edges[e]

@@ -79,43 +79,47 @@ def _turn_fn(H: np.ndarray, su: float, sv: float):
     return f
 
 
-def _arc_cuts(ce, g: _FaceGeometry) -> list[tuple[float, float, float]]:
-    """(w before, w at the extremum, w after) for every interior u-extremum of a coedge, with the
-    points on both sides where the curve has turned ``_TURN`` from the u-iso direction, or where it
-    first reaches a u-knot line or the coedge's end (no other extremum of u between). Extrema
-    inside a pcurve span as ``_needs`` finds them (the same floats), and at a span break where the
-    curve turns back in u by more than ``ueps`` (a circle's quarter points)."""
+def _events(ce, g: _FaceGeometry) -> list[tuple[float, int]]:
+    """The coedge's events in w order: (w, 0) at its interior u-extrema, (w, 1) where it has turned
+    ``_TURN`` from the u-iso direction or crosses a u-knot line (an arc ends there: the turned
+    cells must lie in one span; ``_needs`` cuts the curve there too), (w, 2) at its two ends.
+    Extrema inside a pcurve span as ``_needs`` finds them (the same floats), and at a span break
+    where the curve turns back in u by more than ``ueps`` (a circle's quarter points). Empty for a
+    coedge that ``_flatten`` lays on a u-iso line (its extrema are no cuts)."""
     pieces = list(_span_pieces(ce, np.array([])))
     if not pieces:
         return []
     if 0.5 * np.ptp(np.concatenate([H[:, 0] / H[:, 2] for _, _, H in pieces])) <= g.flat[0]:
-        return []  # laid on a u-iso line by ``_flatten``: its extrema are no cuts
+        return []
     events = [(w0 + r * (w1 - w0), 0) for w0, w1, H in pieces for r in _extrema(H, 0, g.ueps)]
     for (_, w, a), (_, _, b) in zip(pieces[:-1], pieces[1:], strict=True):
-        u = a[-1, 0] / a[-1, 2]
-        da = float(_eval(a, 1.0 - _NEAR)[0, 0]) - u  # both sides of the break, close to it
-        db = float(_eval(b, _NEAR)[0, 0]) - u
-        deep = min(abs(float(_eval(a, 0.5)[0, 0]) - u), abs(float(_eval(b, 0.5)[0, 0]) - u))
-        if da * db > 0 and deep > g.ueps:
+        if _turns_back(a, b, g.ueps):
             events.append((w, 0))
-    if not events:
-        return []
     events += [(pieces[0][0], 2), (pieces[-1][1], 2)]
     for w0, w1, H in pieces:
         uv = H[:, :2] / H[:, 2:3]
         su, sv = g.speed_over(uv)
         events += [(w0 + r * (w1 - w0), 1) for r in _roots(_turn_fn(H, su, sv))]
-        # an arc ends at a u-knot line it reaches first (``_needs`` cuts the curve there): the
-        # turned cells must lie in one span
         lo, hi = uv[:, 0].min(), uv[:, 0].max()
         events += [(w0 + r * (w1 - w0), 1) for c in g.breaks[0] if lo < c < hi
                    for r in _roots(_coord_fn(H, 0, c))]
-    events.sort()
-    out = []
-    for k, (w, kind) in enumerate(events):
-        if kind == 0 and 0 < k < len(events) - 1 and events[k - 1][1] and events[k + 1][1]:
-            out.append((events[k - 1][0], w, events[k + 1][0]))
-    return out
+    return sorted(events)
+
+
+def _turns_back(a: np.ndarray, b: np.ndarray, eps: float) -> bool:
+    """Whether the curve turns back in u where piece ``a`` (homogeneous Bezier) ends and ``b``
+    begins: both run to the same side of that point's u close to it, and by more than ``eps``
+    at their middles."""
+    u = a[-1, 0] / a[-1, 2]
+    da = float(_eval(a, 1.0 - _NEAR)[0, 0]) - u
+    db = float(_eval(b, _NEAR)[0, 0]) - u
+    deep = min(abs(float(_eval(a, 0.5)[0, 0]) - u), abs(float(_eval(b, 0.5)[0, 0]) - u))
+    return da * db > 0 and deep > eps
+
+
+def _steep(H: np.ndarray, t: float, g: _FaceGeometry) -> bool:
+    """Whether a piece runs within ``_TURN`` of the u-iso direction at t."""
+    return float(_turn_fn(H, *g.speed_over(H[:, :2] / H[:, 2:3]))(t)[0]) < 0
 
 
 def _inside(spans: list[np.ndarray], q: np.ndarray, toward: float) -> bool:
@@ -139,45 +143,99 @@ def _inside(spans: list[np.ndarray], q: np.ndarray, toward: float) -> bool:
     return n % 2 == 1
 
 
-def wrap_sites(face: Face, model: Model, g: _FaceGeometry) -> dict[int, list[tuple[float, float, float]]]:
-    """Per edge of the face, the (w before, w at the tip, w after) of the u-extrema to wrap: those
-    of ``_arc_cuts`` where the face lies beyond the tip (tested a little off the tip, between it
-    and the nearer cut's u). Seam edges are left alone (two pcurves of one edge in one face)."""
-    out: dict[int, list[tuple[float, float, float]]] = {}
-    spans = None
-    for ce in _coedges(face, model):
-        if ce.degenerate or model.edges[ce.edge].seam:
-            continue
-        for lo, w, hi in _arc_cuts(ce, g):
-            if spans is None:
-                spans = [H for c in _coedges(face, model) for _, _, H in _span_pieces(c, np.array([]))]
-            uv = ce.curve.evaluate(np.array([lo, w, hi]))
-            bulge = np.sign(uv[0, 0] - uv[1, 0])  # the arc lies towards +u (+1) or -u (-1) of the tip
-            if bulge == 0 or np.sign(uv[2, 0] - uv[1, 0]) != bulge:
+#: a wrap site: the arc's pieces as (edge, w from, w to) intervals, and the tip's uv
+Site = tuple[tuple[tuple[int, float, float], ...], tuple[float, float]]
+
+
+def _tips(face: Face, model: Model, g: _FaceGeometry):
+    """Candidate tips: (intervals, tip uv, uv of the arc's two ends). Inside a coedge, every
+    extremum of ``_events`` with an arc end on both sides; at a vertex where one coedge ends and
+    the next begins (a closed circle's one vertex among them), where the loop turns back in u and
+    runs within ``_TURN`` of the u-iso direction on both sides."""
+    ces = _coedges(face, model)
+    ok = [not ce.degenerate and not model.edges[ce.edge].seam for ce in ces]
+    events = [_events(ce, g) if k else [] for ce, k in zip(ces, ok, strict=True)]
+    for ce, ev in zip(ces, events, strict=True):
+        for k, (w, kind) in enumerate(ev):
+            if kind == 0 and 0 < k < len(ev) - 1 and ev[k - 1][1] and ev[k + 1][1]:
+                lo, hi = ev[k - 1][0], ev[k + 1][0]
+                uv = ce.curve.evaluate(np.array([lo, w, hi]))
+                yield ((ce.edge, lo, hi),), uv[1], uv[[0, 2]]
+    for li in range(len(face.loops)):
+        idx = [k for k, ce in enumerate(ces) if ce.loop == li]
+        for a, b in zip(idx, idx[1:] + idx[:1], strict=True):
+            if not (ok[a] and ok[b]):
                 continue
-            depth = min(abs(uv[0, 0] - uv[1, 0]), abs(uv[2, 0] - uv[1, 0]))
-            q = np.array([uv[1, 0] - 0.5 * bulge * depth, uv[1, 1] + 1e-3 * (uv[2, 1] - uv[0, 1])])
-            if _inside(spans, q, -bulge):
-                out.setdefault(ce.edge, []).append((lo, w, hi))
+            site = _vertex_tip(ces[a], events[a], ces[b], events[b], g)
+            if site is not None:
+                yield site
+
+
+def _vertex_tip(ca, ea, cb, eb, g: _FaceGeometry):
+    """The tip where coedge ``ca`` ends and ``cb`` begins (loop order), as ``_tips`` yields it, or
+    None. Each side's interval runs from the vertex to the nearest event that ends an arc."""
+    if len(ea) < 2 or len(eb) < 2:
+        return None
+    # loop order: a coedge runs from last to first when reversed
+    end_a = ca.first if ca.reversed else ca.last
+    start_b = cb.last if cb.reversed else cb.first
+    sa = list(_span_pieces(ca, np.array([])))
+    sb = list(_span_pieces(cb, np.array([])))
+    Ha = sa[0][2][::-1] if ca.reversed else sa[-1][2]  # the pieces at the vertex, in loop order
+    Hb = sb[-1][2][::-1] if cb.reversed else sb[0][2]
+    pa, pb = Ha[-1, :2] / Ha[-1, 2], Hb[0, :2] / Hb[0, 2]
+    if abs(pa[0] - pb[0]) > g.ueps_lines or abs(pa[1] - pb[1]) > 1e3 * g.veps:
+        return None  # apart in uv (a seam between, or a gap the loop closing has to close)
+    if not (_turns_back(Ha, Hb, g.ueps) and _steep(Ha, 1.0, g) and _steep(Hb, 0.0, g)):
+        return None
+    # the nearest arc end on each side (an extremum first: no wrap)
+    near_a = ea[-2] if not ca.reversed else ea[1]
+    near_b = eb[1] if not cb.reversed else eb[-2]
+    if near_a[1] == 0 or near_b[1] == 0:
+        return None
+    ia = (ca.edge, min(end_a, near_a[0]), max(end_a, near_a[0]))
+    ib = (cb.edge, min(start_b, near_b[0]), max(start_b, near_b[0]))
+    far = np.concatenate([ca.curve.evaluate(np.array([near_a[0]])), cb.curve.evaluate(np.array([near_b[0]]))])
+    return (ia, ib), pa, far
+
+
+def wrap_sites(face: Face, model: Model, g: _FaceGeometry) -> list[Site]:
+    """The u-extrema of the face's loops to wrap: those of ``_tips`` where the face lies beyond
+    the tip (tested a little off it, between the tip and the nearer arc end's u). Seam edges are
+    left alone (two pcurves of one edge in one face)."""
+    out: list[Site] = []
+    spans = None
+    for intervals, tip, far in _tips(face, model, g):
+        bulge = np.sign(far[0, 0] - tip[0])  # the arc lies towards +u (+1) or -u (-1) of the tip
+        if bulge == 0 or np.sign(far[1, 0] - tip[0]) != bulge:
+            continue
+        if spans is None:
+            spans = [H for c in _coedges(face, model) for _, _, H in _span_pieces(c, np.array([]))]
+        depth = min(abs(far[0, 0] - tip[0]), abs(far[1, 0] - tip[0]))
+        q = np.array([tip[0] - 0.5 * bulge * depth, tip[1] + 1e-3 * (far[1, 1] - far[0, 1])])
+        if _inside(spans, q, -bulge):
+            out.append((intervals, (float(tip[0]), float(tip[1]))))
     return out
 
 
-def _arc(pieces: list[_Piece], e: int, lo: float, w: float, hi: float, tw: float) -> list[int] | None:
-    """Indices of the pieces of edge ``e`` that make the arc from ``lo`` to ``hi``, ordered by w,
-    when they cover it end to end and one of them ends at the tip ``w``."""
-    idx = [k for k, p in enumerate(pieces) if p.edge == e and not p.degenerate
-           and min(p.w0, p.w1) >= lo - tw and max(p.w0, p.w1) <= hi + tw]
-    idx.sort(key=lambda k: min(pieces[k].w0, pieces[k].w1))
-    if not idx:
-        return None
-    ranges = [sorted((pieces[k].w0, pieces[k].w1)) for k in idx]
-    if abs(ranges[0][0] - lo) > tw or abs(ranges[-1][1] - hi) > tw:
-        return None
-    if any(abs(a[1] - b[0]) > tw for a, b in zip(ranges[:-1], ranges[1:], strict=True)):
-        return None
-    if not any(abs(r[1] - w) <= tw for r in ranges[:-1]):
-        return None
-    return idx
+def _arc(pieces: list[_Piece], intervals, model: Model) -> list[int] | None:
+    """Indices of the pieces that make up the intervals, when they cover each end to end."""
+    out = []
+    for e, lo, hi in intervals:
+        edge = model.edges[e]
+        tw = 1e-9 * max(abs(edge.last - edge.first), 1e-300)
+        idx = [k for k, p in enumerate(pieces) if p.edge == e and not p.degenerate and not p.virtual
+               and min(p.w0, p.w1) >= lo - tw and max(p.w0, p.w1) <= hi + tw]
+        idx.sort(key=lambda k: min(pieces[k].w0, pieces[k].w1))
+        if not idx:
+            return None
+        ranges = [sorted((pieces[k].w0, pieces[k].w1)) for k in idx]
+        if abs(ranges[0][0] - lo) > tw or abs(ranges[-1][1] - hi) > tw:
+            return None
+        if any(abs(a[1] - b[0]) > tw for a, b in zip(ranges[:-1], ranges[1:], strict=True)):
+            return None
+        out += idx
+    return out
 
 
 def _up(p: _Piece) -> _Piece:
@@ -233,68 +291,68 @@ def _free(pieces: list[_Piece], skip: set[int], box: tuple[float, float, float, 
     return True
 
 
-def wrapped(face: Face, pieces: list[_Piece], sites: dict[int, list[tuple[float, float, float]]],
-            model: Model, g: _FaceGeometry):
+def wrapped(face: Face, pieces: list[_Piece], sites: list[Site], model: Model, g: _FaceGeometry):
     """The face's pieces with each usable site's arc replaced by its notch (three pieces without an
     edge, ``virtual``), the turned cells of the wraps as (c, side, arc piece running with v
     increasing) with side +1 where the slab line ``c`` lies above the arc in u, and the (u, v) points
     on the slab lines at which the cells beside the notch must be cut (the wraps' rung ends)."""
     cells: list[tuple[float, int, _Piece]] = []
-    ends: list[tuple[float, float]] = []
-    if not sites:
-        return pieces, cells, ends
+    cuts: list[tuple[float, float]] = []
+    for intervals, tip_uv in sites:
+        idx = _arc(pieces, intervals, model)
+        if idx is None:
+            continue
+        arc = _absorbed(sorted((_up(pieces[k]) for k in idx), key=lambda p: p.H[0, 1] / p.H[0, 2]), g.veps)
+        if arc is None:
+            continue
+        ends = np.array([arc[0].H[0]] + [p.H[-1] for p in arc])
+        us, vs = ends[:, 0] / ends[:, 2], ends[:, 1] / ends[:, 2]
+        if np.any(np.diff(vs) <= 0):
+            continue  # not monotone in v along the arc
+        k = int(np.argmin(np.hypot(us - tip_uv[0], vs - tip_uv[1])))
+        bulge = float(np.sign(us[0] - us[k]))  # +1: the arc lies towards +u of its tip
+        if not 0 < k < len(arc) or bulge == 0 or np.sign(us[-1] - us[k]) != bulge:
+            continue
+        tip, far = float(us[k]), float(us.max() if bulge > 0 else us.min())
+        skip = set(idx)
+        c = _notch_line(pieces, skip, tip, far, (float(vs[0]), float(vs[-1])), bulge, g)
+        if c is None:
+            continue
+        pb = arc[0].H[0, :2] / arc[0].H[0, 2]
+        pa = arc[-1].H[-1, :2] / arc[-1].H[-1, 2]
+        notch = [np.array([[pb[0], pb[1], 1.0], [c, pb[1], 1.0]]),
+                 np.array([[c, pb[1], 1.0], [c, pa[1], 1.0]]),
+                 np.array([[c, pa[1], 1.0], [pa[0], pa[1], 1.0]])]
+        keep = [p for k, p in enumerate(pieces) if k not in skip]
+        pieces = keep + [_Piece(H, None, 0.0, 0.0, False, None, virtual=True) for H in notch]
+        side = -1 if bulge > 0 else 1
+        cells += [(c, side, p) for p in arc]
+        cuts += [(c, float(v)) for v in vs]
+    return pieces, cells, cuts
+
+
+def _notch_line(pieces: list[_Piece], skip: set[int], tip: float, far: float, span: tuple[float, float],
+                bulge: float, g: _FaceGeometry) -> float | None:
+    """The u of the slab line that closes a wrap's notch beyond its tip (the arc lies between
+    ``tip`` and ``far`` in u, between ``span`` in v): the nearest line beyond the tip (a piece end or
+    a knot line), or where a piece lies on it or before it, a new line between (as far from the tip
+    as the arc is wide, at most halfway). None where neither is free, or the arc crosses a knot line
+    (the turned cells must lie in one span)."""
     inner_u = [float(x) for x in g.ub[1:-1]]
-    for e, found in sorted(sites.items()):
-        edge = model.edges[e]
-        tw = 1e-9 * max(abs(edge.last - edge.first), 1e-300)
-        for lo, w, hi in found:
-            idx = _arc(pieces, e, lo, w, hi, tw)
-            if idx is None:
-                continue
-            arc = [_up(pieces[k]) for k in idx]
-            arc.sort(key=lambda p: p.H[0, 1] / p.H[0, 2])
-            arc = _absorbed(arc, g.veps)
-            if arc is None:
-                continue
-            vs = [float(arc[0].H[0, 1] / arc[0].H[0, 2])] + [float(p.H[-1, 1] / p.H[-1, 2]) for p in arc]
-            if any(b <= a for a, b in zip(vs[:-1], vs[1:], strict=True)):
-                continue  # not monotone in v along the arc
-            ends = np.array([arc[0].H[0]] + [p.H[-1] for p in arc])
-            us = ends[:, 0] / ends[:, 2]
-            ws = [arc[0].w0] + [p.w1 for p in arc]
-            k = int(np.argmin([abs(x - w) for x in ws]))
-            bulge = float(np.sign(us[0] - us[k]))  # +1: the arc lies towards +u of its tip
-            if not 0 < k < len(arc) or bulge == 0 or np.sign(us[-1] - us[k]) != bulge:
-                continue
-            tip, far = float(us[k]), float(us.max() if bulge > 0 else us.min())
-            margin = _CLEAR * g.ueps_lines
-            others = [float(x) for k, p in enumerate(pieces) if k not in idx
-                      for x in (p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2])]
-            cands = [x for x in others + inner_u if (tip - x) * bulge > margin]
-            if not cands:
-                continue
-            if any((x - tip) * bulge > 0 and (far - x) * bulge > 0 for x in inner_u):
-                continue  # the arc crosses a knot line: the turned cells would span two spans
-            # the slab line beyond the tip, or where something lies on it or before it, a new one
-            # between (as far from the tip as the arc is wide, at most halfway)
-            near = max(cands) if bulge > 0 else min(cands)
-            new = tip - bulge * min(abs(far - tip), 0.5 * abs(tip - near))
-            for c in (near, new) if abs(new - tip) > margin else (near,):
-                if _free(pieces, set(idx), (min(c, far), max(c, far), vs[0], vs[-1]), c, g.veps):
-                    break
-            else:
-                continue
-            pb = arc[0].H[0, :2] / arc[0].H[0, 2]
-            pa = arc[-1].H[-1, :2] / arc[-1].H[-1, 2]
-            notch = [np.array([[pb[0], pb[1], 1.0], [c, pb[1], 1.0]]),
-                     np.array([[c, pb[1], 1.0], [c, pa[1], 1.0]]),
-                     np.array([[c, pa[1], 1.0], [pa[0], pa[1], 1.0]])]
-            keep = [p for k, p in enumerate(pieces) if k not in idx]
-            pieces = keep + [_Piece(H, None, 0.0, 0.0, False, None, virtual=True) for H in notch]
-            side = -1 if bulge > 0 else 1
-            cells += [(c, side, p) for p in arc]
-            ends += [(c, v) for v in vs]
-    return pieces, cells, ends
+    if any((x - tip) * bulge > 0 and (far - x) * bulge > 0 for x in inner_u):
+        return None
+    margin = _CLEAR * g.ueps_lines
+    ends = [float(x) for k, p in enumerate(pieces) if k not in skip
+            for x in (p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2])]
+    cands = [x for x in ends + inner_u if (tip - x) * bulge > margin]
+    if not cands:
+        return None
+    near = max(cands) if bulge > 0 else min(cands)
+    new = tip - bulge * min(abs(far - tip), 0.5 * abs(tip - near))
+    for c in (near, new) if abs(new - tip) > margin else (near,):
+        if _free(pieces, skip, (min(c, far), max(c, far), *span), c, g.veps):
+            return c
+    return None
 
 
 def _transposed_side(H: np.ndarray, edge, w0: float, w1: float) -> Side:
