@@ -275,19 +275,21 @@ def _absorbed(arc: list[_Piece], veps: float) -> list[_Piece] | None:
 
 
 def _free(pieces: list[_Piece], skip: set[int], box: tuple[float, float, float, float], c: float,
-          veps: float) -> bool:
+          eps: tuple[float, float]) -> bool:
     """No piece but those in ``skip`` enters the open box (u0, u1, v0, v1) (control polygons), and
-    none ends on the line u = c between v0 and v1."""
+    none touches the line u = c between v0 and v1 (within ``eps`` = (u, v)): not an end on it, and
+    not a piece along it (ec_turbine's cylinder: a notch on the seam left the turned cells' sides
+    there inner sides beside the seam's own, 125 free edges)."""
     u0, u1, v0, v1 = box
     for k, p in enumerate(pieces):
         if k in skip:
             continue
         uv = p.H[:, :2] / p.H[:, 2:3]
-        if uv[:, 0].max() > u0 and uv[:, 0].min() < u1 and uv[:, 1].max() > v0 and uv[:, 1].min() < v1:
+        lo, hi = uv.min(axis=0), uv.max(axis=0)
+        if hi[0] > u0 and lo[0] < u1 and hi[1] > v0 and lo[1] < v1:
             return False
-        for x in (uv[0], uv[-1]):
-            if x[0] == c and v0 - veps <= x[1] <= v1 + veps:
-                return False
+        if lo[0] <= c + eps[0] and hi[0] >= c - eps[0] and hi[1] >= v0 - eps[1] and lo[1] <= v1 + eps[1]:
+            return False
     return True
 
 
@@ -350,7 +352,7 @@ def _notch_line(pieces: list[_Piece], skip: set[int], tip: float, far: float, sp
     near = max(cands) if bulge > 0 else min(cands)
     new = tip - bulge * min(abs(far - tip), 0.5 * abs(tip - near))
     for c in (near, new) if abs(new - tip) > margin else (near,):
-        if _free(pieces, skip, (min(c, far), max(c, far), *span), c, g.veps):
+        if _free(pieces, skip, (min(c, far), max(c, far), *span), c, (g.ueps_lines, g.veps)):
             return c
     return None
 
