@@ -18,6 +18,9 @@ The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
    face into strips. A plan cut that only a neighbour needs and that ends a strip across a slab (a
    cell far longer than wide, beside a knot line or a vertex) is left out where that leaves fewer
    strips (``_without_strip_cuts``): the face's side runs through it, a T-vertex of the neighbour.
+   No slab line passes through a u-extremum of a pcurve beyond which the face lies (it would be
+   tangent to the curve there, a corner of zero angle): the arc around it is wrapped by cells turned
+   by 90 degrees instead (``wrap``).
 3. **Maps.** A cell whose bottom and top are iso-lines is a sub-box: de Casteljau/blossoming. Otherwise
    the ruled map phi(s, t) = (1 - t) B(s) + t T(s) joins the bottom B and the top T, each in its own
    (pcurve = edge) parameter, so the trimming side keeps the edge's parameter. S o phi is composed

@@ -79,13 +79,14 @@ def _turn_fn(H: np.ndarray, su: float, sv: float):
     return f
 
 
-def _events(ce, g: _FaceGeometry) -> list[tuple[float, int]]:
+def _events(ce, g: _FaceGeometry, always: bool = False) -> list[tuple[float, int]]:
     """The coedge's events in w order: (w, 0) at its interior u-extrema, (w, 1) where it has turned
     ``_TURN`` from the u-iso direction or crosses a u-knot line (an arc ends there: the turned
     cells must lie in one span; ``_needs`` cuts the curve there too), (w, 2) at its two ends.
     Extrema inside a pcurve span as ``_needs`` finds them (the same floats), and at a span break
     where the curve turns back in u by more than ``ueps`` (a circle's quarter points). Empty for a
-    coedge that ``_flatten`` lays on a u-iso line (its extrema are no cuts)."""
+    coedge that ``_flatten`` lays on a u-iso line (its extrema are no cuts), and unless ``always``,
+    for one without extrema (the turns are sought only where an arc may end)."""
     pieces = list(_span_pieces(ce, np.array([])))
     if not pieces:
         return []
@@ -95,6 +96,8 @@ def _events(ce, g: _FaceGeometry) -> list[tuple[float, int]]:
     for (_, w, a), (_, _, b) in zip(pieces[:-1], pieces[1:], strict=True):
         if _turns_back(a, b, g.ueps):
             events.append((w, 0))
+    if not events and not always:
+        return []
     events += [(pieces[0][0], 2), (pieces[-1][1], 2)]
     for w0, w1, H in pieces:
         uv = H[:, :2] / H[:, 2:3]
@@ -164,31 +167,43 @@ def _tips(face: Face, model: Model, g: _FaceGeometry):
     for li in range(len(face.loops)):
         idx = [k for k, ce in enumerate(ces) if ce.loop == li]
         for a, b in zip(idx, idx[1:] + idx[:1], strict=True):
-            if not (ok[a] and ok[b]):
+            pa = _vertex_turn(ces[a], ces[b], g) if ok[a] and ok[b] else None
+            if pa is None:
                 continue
-            site = _vertex_tip(ces[a], events[a], ces[b], events[b], g)
+            for k in (a, b):
+                if not events[k]:
+                    events[k] = _events(ces[k], g, always=True)
+            site = _vertex_arc(ces[a], events[a], ces[b], events[b], pa)
             if site is not None:
                 yield site
 
 
-def _vertex_tip(ca, ea, cb, eb, g: _FaceGeometry):
-    """The tip where coedge ``ca`` ends and ``cb`` begins (loop order), as ``_tips`` yields it, or
-    None. Each side's interval runs from the vertex to the nearest event that ends an arc."""
-    if len(ea) < 2 or len(eb) < 2:
-        return None
-    # loop order: a coedge runs from last to first when reversed
-    end_a = ca.first if ca.reversed else ca.last
-    start_b = cb.last if cb.reversed else cb.first
+def _vertex_turn(ca, cb, g: _FaceGeometry) -> np.ndarray | None:
+    """The uv of the vertex where coedge ``ca`` ends and ``cb`` begins (loop order), when the loop
+    turns back in u there and runs within ``_TURN`` of the u-iso direction on both sides."""
     sa = list(_span_pieces(ca, np.array([])))
     sb = list(_span_pieces(cb, np.array([])))
-    Ha = sa[0][2][::-1] if ca.reversed else sa[-1][2]  # the pieces at the vertex, in loop order
+    if not sa or not sb:
+        return None
+    # the pieces at the vertex, in loop order (a coedge runs from last to first when reversed)
+    Ha = sa[0][2][::-1] if ca.reversed else sa[-1][2]
     Hb = sb[-1][2][::-1] if cb.reversed else sb[0][2]
     pa, pb = Ha[-1, :2] / Ha[-1, 2], Hb[0, :2] / Hb[0, 2]
     if abs(pa[0] - pb[0]) > g.ueps_lines or abs(pa[1] - pb[1]) > 1e3 * g.veps:
         return None  # apart in uv (a seam between, or a gap the loop closing has to close)
     if not (_turns_back(Ha, Hb, g.ueps) and _steep(Ha, 1.0, g) and _steep(Hb, 0.0, g)):
         return None
-    # the nearest arc end on each side (an extremum first: no wrap)
+    return pa
+
+
+def _vertex_arc(ca, ea, cb, eb, pa: np.ndarray):
+    """The tip at the vertex ``pa`` where ``ca`` ends and ``cb`` begins, as ``_tips`` yields it: on
+    each side the interval from the vertex to the nearest event that ends an arc (None where an
+    extremum comes first)."""
+    if len(ea) < 2 or len(eb) < 2:
+        return None
+    end_a = ca.first if ca.reversed else ca.last
+    start_b = cb.last if cb.reversed else cb.first
     near_a = ea[-2] if not ca.reversed else ea[1]
     near_b = eb[1] if not cb.reversed else eb[-2]
     if near_a[1] == 0 or near_b[1] == 0:
