@@ -11,7 +11,7 @@ from watertight_cli.wrap import _inside, wrap_sites
 
 from .conftest import fixture_path
 
-TOL = Tolerances()
+TOL = Tolerances(wrap_tips=True)
 
 
 def _corner_angles(p) -> list[float]:
@@ -84,3 +84,24 @@ def test_inside_counts_the_crossings_of_a_ray():
         assert _inside(spans, np.array([0.8, 0.45]), toward)
         assert not _inside(spans, np.array([0.5, 0.5]), toward)
         assert not _inside(spans, np.array([1.2, 0.5]), toward)
+
+
+def test_wrap_tips_is_an_option_of_convert(tmp_path):
+    """``--wrap-tips`` reaches stage 1 through the CLI: the plate converts with every invariant and
+    more patches than without (the turned cells and the notches' cuts)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from watertight_cli.cli import main
+
+    counts = []
+    for extra in ([], ["--wrap-tips"]):
+        out = tmp_path / f"o{len(extra)}.step"
+        args = ["convert", str(fixture_path("plate_with_holes.step")), str(out), "--json", *extra]
+        res = CliRunner().invoke(main, args)
+        assert res.exit_code == 0, res.output
+        rep = json.loads(res.stdout)
+        assert all(rep["invariants"].values())
+        counts.append(rep["patches_out"])
+    assert counts[1] > counts[0]

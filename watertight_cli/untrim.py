@@ -476,9 +476,10 @@ class _FaceGeometry:
 
 
 def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
-              thin: float = 0.0) -> dict[int, np.ndarray]:
+              thin: float = 0.0, wrap: bool = False) -> dict[int, np.ndarray]:
     """Every non-degenerate edge's sorted split parameters, agreed by all its faces (see module doc).
-    ``sliver``, ``thin``: see ``_thin_plan``."""
+    ``sliver``, ``thin``: see ``_thin_plan``. ``wrap``: cut the arcs that ``wrap`` wraps
+    (``Tolerances.wrap_tips``)."""
     from .wrap import wrap_sites
 
     raw: dict[int, list[float]] = {}
@@ -489,7 +490,7 @@ def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
                 continue
             raw.setdefault(ce.edge, []).extend(_needs(ce, g.breaks, (g.ueps, g.veps), g.flat))
             own.setdefault(ce.edge, set()).update(float(x) for x in ce.breaks[1:-1])
-        for intervals, _ in wrap_sites(face, model, g):  # the ends of the arcs to wrap
+        for intervals, _ in wrap_sites(face, model, g) if wrap else ():  # the ends of the arcs to wrap
             for e, lo, hi in intervals:
                 raw[e].extend((lo, hi))
     plan = {}
@@ -2005,7 +2006,8 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     fr.approximated = bool(flat > g.snap)
     from .wrap import turned_patches, wrap_sites, wrapped
 
-    pieces, wraps, wrap_ends = wrapped(face, pieces, wrap_sites(face, model, g), model, g)
+    sites = wrap_sites(face, model, g) if tol.wrap_tips else []
+    pieces, wraps, wrap_ends = wrapped(face, pieces, sites, model, g)
     fr.wraps = len(wrap_ends) - len(wraps)  # a wrap of n turned cells ends n + 1 of them
     reparam = 0.0
     for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts, plan, wrap_ends):
@@ -2075,7 +2077,8 @@ def transpose_face(face: Face) -> Face:
                              for ce in loop.coedges), loop.outer)
                   for loop in face.loops)
     u0, u1, v0, v1 = face.uv_bounds
-    return replace(face, surface=surf, reversed=not face.reversed, loops=loops, uv_bounds=(v0, v1, u0, u1))
+    return replace(face, surface=surf, reversed=not face.reversed, loops=loops, uv_bounds=(v0, v1, u0, u1),
+                   turned=not face.turned)
 
 
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
@@ -2092,7 +2095,7 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     t0 = time.perf_counter()
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal,
-                     max(tol.thin_rel, tol.sliver_rel) * model.diagonal)
+                     max(tol.thin_rel, tol.sliver_rel) * model.diagonal, tol.wrap_tips)
     slide = RUNG_SLIDE * tol.approx_rel * model.diagonal
     plan_time = time.perf_counter() - t0
     faces = []

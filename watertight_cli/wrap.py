@@ -12,8 +12,12 @@ Where the material lies on the outer side of the bulge (a hole's leftmost point,
 point of an outer loop), the bulge is wrapped instead:
 
 - the edge plan cuts the curve where it has turned ``_TURN`` (45 degrees in 3D, by the span's speed
-  bounds) from the iso direction on either side of the extremum (``wrap_sites``), so the arc between
-  those cuts stays within 45 degrees of the u-iso direction;
+  bounds) from the iso direction on either side of the extremum, or where it first crosses a u-knot
+  line (``wrap_sites``), so the arc between stays within 45 degrees of the u-iso direction; an arc
+  that would end at a vertex first is not wrapped (on gmsh__917_fusee.stp such an arc, a whole
+  edge of 23 pieces, left inner sides 1.4e-8 apart after stage 2: I2 failed), and neither is a
+  face that stage 1 turned (its plan was cut for the face as it was; gmsh__wing_fuselage.step's
+  face 12 left a gap of 1.5e-6 and a free edge);
 - the arc is replaced, for the slab decomposition, by a three-sided notch: a v-iso line from each of
   its ends to the nearest slab line beyond the tip, and that slab line between them (``wrapped``);
 - the region between the notch and the arc is cut by v-iso lines through the arc's piece ends (the
@@ -152,15 +156,15 @@ Site = tuple[tuple[tuple[int, float, float], ...], tuple[float, float]]
 
 def _tips(face: Face, model: Model, g: _FaceGeometry):
     """Candidate tips: (intervals, tip uv, uv of the arc's two ends). Inside a coedge, every
-    extremum of ``_events`` with an arc end on both sides; at a vertex where one coedge ends and
-    the next begins (a closed circle's one vertex among them), where the loop turns back in u and
-    runs within ``_TURN`` of the u-iso direction on both sides."""
+    extremum of ``_events`` with a turn or knot crossing next on both sides; at a vertex where one
+    coedge ends and the next begins (a closed circle's one vertex among them), where the loop turns
+    back in u and runs within ``_TURN`` of the u-iso direction on both sides."""
     ces = _coedges(face, model)
     ok = [not ce.degenerate and not model.edges[ce.edge].seam for ce in ces]
     events = [_events(ce, g) if k else [] for ce, k in zip(ces, ok, strict=True)]
     for ce, ev in zip(ces, events, strict=True):
         for k, (w, kind) in enumerate(ev):
-            if kind == 0 and 0 < k < len(ev) - 1 and ev[k - 1][1] and ev[k + 1][1]:
+            if kind == 0 and 0 < k < len(ev) - 1 and ev[k - 1][1] == ev[k + 1][1] == 1:
                 lo, hi = ev[k - 1][0], ev[k + 1][0]
                 uv = ce.curve.evaluate(np.array([lo, w, hi]))
                 yield ((ce.edge, lo, hi),), uv[1], uv[[0, 2]]
@@ -198,15 +202,15 @@ def _vertex_turn(ca, cb, g: _FaceGeometry) -> np.ndarray | None:
 
 def _vertex_arc(ca, ea, cb, eb, pa: np.ndarray):
     """The tip at the vertex ``pa`` where ``ca`` ends and ``cb`` begins, as ``_tips`` yields it: on
-    each side the interval from the vertex to the nearest event that ends an arc (None where an
-    extremum comes first)."""
+    each side the interval from the vertex to the nearest event, which must be a turn or a knot
+    crossing (None where an extremum or the coedge's other end comes first)."""
     if len(ea) < 2 or len(eb) < 2:
         return None
     end_a = ca.first if ca.reversed else ca.last
     start_b = cb.last if cb.reversed else cb.first
     near_a = ea[-2] if not ca.reversed else ea[1]
     near_b = eb[1] if not cb.reversed else eb[-2]
-    if near_a[1] == 0 or near_b[1] == 0:
+    if near_a[1] != 1 or near_b[1] != 1:
         return None
     ia = (ca.edge, min(end_a, near_a[0]), max(end_a, near_a[0]))
     ib = (cb.edge, min(start_b, near_b[0]), max(start_b, near_b[0]))
@@ -217,8 +221,10 @@ def _vertex_arc(ca, ea, cb, eb, pa: np.ndarray):
 def wrap_sites(face: Face, model: Model, g: _FaceGeometry) -> list[Site]:
     """The u-extrema of the face's loops to wrap: those of ``_tips`` where the face lies beyond
     the tip (tested a little off it, between the tip and the nearer arc end's u). Seam edges are
-    left alone (two pcurves of one edge in one face)."""
+    left alone (two pcurves of one edge in one face), and so are turned faces."""
     out: list[Site] = []
+    if face.turned:
+        return out
     spans = None
     for intervals, tip, far in _tips(face, model, g):
         bulge = np.sign(far[0, 0] - tip[0])  # the arc lies towards +u (+1) or -u (-1) of the tip
