@@ -265,6 +265,11 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
               show_default=True, metavar="REL",
               help="Allowed deviation where approximation is needed, relative to the model's "
                    "bounding-box diagonal (1e-6: one micron on a one-metre part).")
+@click.option("--wrap-tips", is_flag=True, default=False,
+              help="Wrap each point where a trimming curve turns back in u (a hole's leftmost and "
+                   "rightmost points) in cells turned by 90 degrees, instead of cutting the face "
+                   "with a line tangent to the curve there: no patch corner of zero angle. "
+                   "Experimental: it can leave inner sides about 1e-8 apart on large models.")
 @click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=_DEFAULTS.slender_ratio,
               show_default=True, metavar="RATIO",
               help="Longest an edge along a patch may be for the patch's width. Stage 1 leaves "
@@ -308,8 +313,8 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
               help="One-file form: also write a self-contained HTML page to PATH: gaps before and after, "
                    "worst edges, pictures before and after, degrees and deviation per face, settings and "
                    "times.")
-def convert(paths, output_dir, stage, max_degree, tolerance, max_aspect, as_json, overwrite, fast, max_gap,
-            max_deviation, quiet, html_path, **batch_opts):
+def convert(paths, output_dir, stage, max_degree, tolerance, wrap_tips, max_aspect, as_json, overwrite, fast,
+            max_gap, max_deviation, quiet, html_path, **batch_opts):
     """Convert STEP or IGES models into watertight models of untrimmed Bezier patches.
 
     Two forms: `watertight convert IN OUT` converts one file; `watertight convert IN... -o OUTDIR`
@@ -337,7 +342,8 @@ def convert(paths, output_dir, stage, max_degree, tolerance, max_aspect, as_json
     the shared curve used per edge, and per face the deviation bound: stage 1's (approximation
     where the degree budget forced one, repairs of the input) plus the substitution's move.
     """
-    tol = Tolerances(approx_rel=tolerance, max_degree=max_degree, slender_ratio=max_aspect)
+    tol = Tolerances(approx_rel=tolerance, max_degree=max_degree, slender_ratio=max_aspect,
+                     wrap_tips=wrap_tips)
     if output_dir is not None and html_path:
         _err("--html needs the one-file form: IN OUT")
         sys.exit(EXIT_USAGE)
@@ -439,7 +445,7 @@ def _convert_batch(paths, output_dir, tol, stage, as_json, overwrite, fast, max_
         return EXIT_USAGE
     n_jobs = jobs or _cores()
     options = {"stage": stage, "tolerance": tol.approx_rel, "max_degree": tol.max_degree,
-               "max_aspect": tol.slender_ratio, "fast": fast,
+               "max_aspect": tol.slender_ratio, "wrap_tips": tol.wrap_tips, "fast": fast,
                "overwrite": overwrite, "recursive": recursive, "format": fmt, "output_dir": output_dir,
                "jobs": n_jobs, "timeout": timeout, "max_memory": max_memory, "executor": executor,
                "max_gap": max_gap, "max_deviation": max_deviation}

@@ -205,6 +205,7 @@ class Face:
     loops: tuple[Loop, ...]
     uv_bounds: tuple[float, float, float, float]
     approximation: float = 0.0
+    turned: bool = False  # u and v swapped by stage 1 (``untrim.transpose_face``)
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,9 @@ The pipeline, per model (see ``../shared/DESIGN.md``, "Stage 1"):
    face into strips. A plan cut that only a neighbour needs and that ends a strip across a slab (a
    cell far longer than wide, beside a knot line or a vertex) is left out where that leaves fewer
    strips (``_without_strip_cuts``): the face's side runs through it, a T-vertex of the neighbour.
+   No slab line passes through a u-extremum of a pcurve beyond which the face lies (it would be
+   tangent to the curve there, a corner of zero angle): the arc around it is wrapped by cells turned
+   by 90 degrees instead (``wrap``).
 3. **Maps.** A cell whose bottom and top are iso-lines is a sub-box: de Casteljau/blossoming. Otherwise
    the ruled map phi(s, t) = (1 - t) B(s) + t T(s) joins the bottom B and the top T, each in its own
    (pcurve = edge) parameter, so the trimming side keeps the edge's parameter. S o phi is composed
@@ -165,6 +168,7 @@ class FaceResult:
     closure: float = 0.0  # deviation bound of closing the loops' uv gaps and snapping (model units)
     flattened: float = 0.0  # the part of ``closure`` spent on flattening near-iso pcurves (_flatten)
     snapped: int = 0  # pieces treated as iso-lines though they wiggle (by less than the snap)
+    wraps: int = 0  # u-extrema of pcurves wrapped by turned cells instead of cut by a slab line (``wrap``)
     slivers: int = 0  # pieces narrower than a sliver (Tolerances.sliver_rel) left on a slab line
     problems: list[str] = field(default_factory=list)
     # pieces that lie on a slab line (u-iso): the rungs of the cells beside them are on their edges
@@ -472,9 +476,12 @@ class _FaceGeometry:
 
 
 def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
-              thin: float = 0.0) -> dict[int, np.ndarray]:
+              thin: float = 0.0, wrap: bool = False) -> dict[int, np.ndarray]:
     """Every non-degenerate edge's sorted split parameters, agreed by all its faces (see module doc).
-    ``sliver``, ``thin``: see ``_thin_plan``."""
+    ``sliver``, ``thin``: see ``_thin_plan``. ``wrap``: cut the arcs that ``wrap`` wraps
+    (``Tolerances.wrap_tips``)."""
+    from .wrap import wrap_sites
+
     raw: dict[int, list[float]] = {}
     own: dict[int, set[float]] = {}  # per edge, the knots of its faces' pcurves
     for face, g in zip(model.faces, geoms, strict=True):
@@ -483,6 +490,9 @@ def edge_plan(model: Model, geoms: list[_FaceGeometry], sliver: float = 0.0,
                 continue
             raw.setdefault(ce.edge, []).extend(_needs(ce, g.breaks, (g.ueps, g.veps), g.flat))
             own.setdefault(ce.edge, set()).update(float(x) for x in ce.breaks[1:-1])
+        for intervals, _ in wrap_sites(face, model, g) if wrap else ():  # the ends of the arcs to wrap
+            for e, lo, hi in intervals:
+                raw[e].extend((lo, hi))
     plan = {}
     for e, vals in raw.items():
         edge = model.edges[e]
@@ -527,20 +537,21 @@ class _Piece:
     w1: float
     degenerate: bool
     pcurve: BSplineCurve | None = None
+    virtual: bool = False  # a side of a wrap's notch (``wrap.wrapped``), no part of the loops
 
 
 def _orient_u(p: _Piece) -> _Piece:
     """The same piece running with u increasing."""
     if p.H[-1, 0] / p.H[-1, 2] >= p.H[0, 0] / p.H[0, 2]:
         return p
-    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate, p.pcurve)
+    return _Piece(p.H[::-1].copy(), p.edge, p.w1, p.w0, p.degenerate, p.pcurve, p.virtual)
 
 
 def _split(p: _Piece, t: float) -> tuple[_Piece, _Piece]:
     w = p.w0 + t * (p.w1 - p.w0)
     return (
-        _Piece(curve_segment(p.H, 0.0, t), p.edge, p.w0, w, p.degenerate, p.pcurve),
-        _Piece(curve_segment(p.H, t, 1.0), p.edge, w, p.w1, p.degenerate, p.pcurve),
+        _Piece(curve_segment(p.H, 0.0, t), p.edge, p.w0, w, p.degenerate, p.pcurve, p.virtual),
+        _Piece(curve_segment(p.H, t, 1.0), p.edge, w, p.w1, p.degenerate, p.pcurve, p.virtual),
     )
 
 
@@ -677,10 +688,11 @@ def _as_side(p: _Piece, veps: float) -> Side:
 
 
 def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, rung_cuts: str = "plan",
-           plan: dict[int, np.ndarray] | None = None):
+           plan: dict[int, np.ndarray] | None = None, wrap_ends=()):
     """Yield (ua, ub, bottom Side, top Side) cells of a face from its pieces (see module doc).
     ``plan``: the edge plan, which tells the ends of rung pieces at a plan parameter from those at
-    a knot of the face's own pcurve only (``_knot_cuts_dropped``)."""
+    a knot of the face's own pcurve only (``_knot_cuts_dropped``). ``wrap_ends``: (u, v) points on
+    slab lines where the wraps' turned cells end (``wrap.wrapped``); the cells beside are cut there."""
     ub, vb, ueps, veps = g.ub, g.vb, g.ueps_lines, g.veps
     ends_uv = np.array([p.H[k, :2] / p.H[k, 2] for p in pieces for k in (0, -1)])
     lo, hi = float(ends_uv[:, 0].min()), float(ends_uv[:, 0].max())
@@ -705,6 +717,8 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
         # oriented with u increasing, the piece runs from the lower of its two lines
         i, j = int(index[min(ends_at)]), int(index[max(ends_at)])
         if i == j:
+            if p.virtual:
+                continue  # a wrap's notch on its slab line: the cells beside it are cut at wrap_ends
             fr.iso_pieces.append(p)
             if b - a > g.ueps:
                 fr.slivers += 1  # narrower than a sliver: its strip is left to the neighbours
@@ -744,7 +758,7 @@ def _cells(face: Face, pieces: list[_Piece], g: _FaceGeometry, fr: FaceResult, r
                     planned.add(v)
     plan_only -= at_vertex
     knot_only = plan_only - planned  # ends at a knot of the pcurve that the plan thinned away
-    vertex_ends = np.array(vertex_ends if rung_cuts != "none" else []).reshape(-1, 2)
+    vertex_ends = np.array((vertex_ends if rung_cuts != "none" else []) + list(wrap_ends)).reshape(-1, 2)
     # ends of the other pieces (where a pcurve starts, ends or turns on a slab line) that fall
     # inside a neighbouring cell's rung a hair from its end: see _NEAR_END. A part from line a to
     # line b has its first point (k = 0) on line a and its last (k = 1) on line b
@@ -1990,11 +2004,19 @@ def untrim_face(face: Face, model: Model, plan: dict[int, np.ndarray], tol: Tole
     fr.closure = move + flat
     fr.flattened = flat
     fr.approximated = bool(flat > g.snap)
+    from .wrap import turned_patches, wrap_sites, wrapped
+
+    sites = wrap_sites(face, model, g) if tol.wrap_tips else []
+    pieces, wraps, wrap_ends = wrapped(face, pieces, sites, model, g)
+    fr.wraps = len(wrap_ends) - len(wraps)  # a wrap of n turned cells ends n + 1 of them
     reparam = 0.0
-    for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts, plan):
+    for ua, ubb, bot, top in _cells(face, pieces, g, fr, rung_cuts, plan, wrap_ends):
         t = time.perf_counter()
         fr.patches.extend(ctx.cell_patches(ua, ubb, bot, top, fr))
         reparam += time.perf_counter() - t
+    t = time.perf_counter()
+    fr.patches.extend(turned_patches(face, wraps, model, tol, fr))
+    reparam += time.perf_counter() - t
     t = time.perf_counter()
     for p in fr.patches:
         # a sub-box is the surface's own span at its own degree: only composition writes degrees
@@ -2055,7 +2077,8 @@ def transpose_face(face: Face) -> Face:
                              for ce in loop.coedges), loop.outer)
                   for loop in face.loops)
     u0, u1, v0, v1 = face.uv_bounds
-    return replace(face, surface=surf, reversed=not face.reversed, loops=loops, uv_bounds=(v0, v1, u0, u1))
+    return replace(face, surface=surf, reversed=not face.reversed, loops=loops, uv_bounds=(v0, v1, u0, u1),
+                   turned=not face.turned)
 
 
 def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
@@ -2072,7 +2095,7 @@ def untrim(model: Model, tol: Tolerances, progress=None) -> UntrimResult:
     t0 = time.perf_counter()
     geoms = [_FaceGeometry(face, model.diagonal, tol) for face in model.faces]
     plan = edge_plan(model, geoms, tol.sliver_rel * model.diagonal,
-                     max(tol.thin_rel, tol.sliver_rel) * model.diagonal)
+                     max(tol.thin_rel, tol.sliver_rel) * model.diagonal, tol.wrap_tips)
     slide = RUNG_SLIDE * tol.approx_rel * model.diagonal
     plan_time = time.perf_counter() - t0
     faces = []
