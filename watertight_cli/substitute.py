@@ -1549,6 +1549,7 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
     patches = fr.patches
     lonely = []
     partners: dict[int, list[tuple[int, bool]]] = {}  # item -> the others with its two corners
+    copies: list[tuple[int, int, bool]] = []  # (winner, side that took its row, reversed)
     for key, ks in by_ends.items():
         if key in on_edge and _onto_edge_side(fr, items, ends, ks, on_edge[key], fs, tol, diagonal):
             continue
@@ -1567,19 +1568,34 @@ def _share_inner(fr, info, labels: dict, fs: FaceSubstitution, tol: Tolerances, 
         for k in ks:
             if items[k][0] == items[m][0]:
                 continue
-            row = _row(src.ctrl, items[m][1])
             flip = ends[k] != ends[m]
-            if flip:
-                row = row[::-1]
             if not _same_parameter(src, items[m][1], patches[items[k][0]], items[k][1], flip, fr.eps,
                                    JOIN_REL * diagonal):
                 # the same line in another parameterization (a side that follows an edge's
                 # parameter): copying would slide the patch along it; both stay on the line
                 fs.inner_reparam += 1
                 continue
-            _copy_row(patches[items[k][0]], items[k][1], row, src.rational, fs, tol, diagonal, src.factors)
+            _copy_shared(patches, items, m, k, flip, fs, tol, diagonal)
+            copies.append((m, k, flip))
             fs.inner_shared += 1
-    _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners, ends, guide)
+    touched = _share_t_sides(fr, items, lonely, fwd, fs, tol, diagonal, partners, ends, guide)
+    # a T-side copy moves its patch's corners onto the long side, and the patch's other sides with
+    # them, each by the blend its own degree and weights give: a side shared before with a patch of
+    # other weights no longer matches its partner (fusee face 184 with wrapped tips: a ladder
+    # cell's top, degree 1, against the degree-5 rational bottom of the cell above, 4.6e-8 apart
+    # after both took the same T-vertex). The partner takes the winner's row again.
+    for m, k, flip in copies:
+        if items[m][0] in touched or items[k][0] in touched:
+            _copy_shared(patches, items, m, k, flip, fs, tol, diagonal)
+
+
+def _copy_shared(patches, items, m: int, k: int, flip: bool, fs: FaceSubstitution, tol: Tolerances,
+                 diagonal: float) -> None:
+    """Side ``k`` takes the row of side ``m`` (items of ``_share_inner``), reversed when ``flip``."""
+    src = patches[items[m][0]]
+    row = _row(src.ctrl, items[m][1])
+    _copy_row(patches[items[k][0]], items[k][1], row[::-1] if flip else row, src.rational, fs, tol, diagonal,
+              src.factors)
 
 
 def _onto_edge_side(fr, items, ends, ks: list[int], edge_side: tuple, fs: FaceSubstitution, tol: Tolerances,
@@ -1635,7 +1651,7 @@ def _same_parameter(a: Patch, an: str, b: Patch, bn: str, flip: bool, eps, eps3:
 
 
 def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubstitution, tol: Tolerances,
-                   diagonal: float, partners: dict, ends: list, guide=None) -> None:
+                   diagonal: float, partners: dict, ends: list, guide=None) -> set[int]:
     """Sides that meet a longer side of a neighbour at a T-vertex become subdivisions of that side,
     so the two stay on one curve (its corners at the T-vertex are computed once). The long side
     is a lonely one where there is one; else a side shared whole (``partners``: across a cell
@@ -1646,9 +1662,10 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
     curves between them): a piece of the long side that no short side here takes, from corner to
     corner of an edge of the face, lies beside the neighbour across that edge, whose side is the
     edge's shared curve; the bend then also takes the long side onto that curve there
-    (``_through_guided``)."""
+    (``_through_guided``). Returns the patches whose rows it changed."""
+    touched: set[int] = set()
     if not lonely:
-        return
+        return touched
     # shorts: the lonely sides; containers: lonely ones first, else sides shared whole (across a
     # cell thinner than the joining tolerance whose two sides were joined: ec_turbine)
     a, b = fwd[:, :2], fwd[:, 2:]
@@ -1730,14 +1747,18 @@ def _share_t_sides(fr, items, lonely: list[int], fwd: np.ndarray, fs: FaceSubsti
             if bent is not None:
                 _copy_row(long_p, lname, bent, long_p.rational, fs, tol, diagonal, long_p.factors)
                 row = _row(long_p.ctrl, lname)
+                touched.add(li)
                 for o, flip in partners.get(j, ()):
                     _copy_row(fr.patches[items[o][0]], items[o][1], row[::-1] if flip else row,
                               long_p.rational, fs, tol, diagonal, long_p.factors)
+                    touched.add(items[o][0])
         for k, ua, ub in shorts:
             _copy_row(fr.patches[items[k][0]], items[k][1], curve_segment(row, ua, ub), long_p.rational,
                       fs, tol, diagonal, long_p.factors)
+            touched.add(items[k][0])
             fs.inner_t += 1
     fs.inner_unpaired += len(set(lonely) - used)
+    return touched
 
 
 def _guides(row: np.ndarray, shorts: list, ends: list, j: int, guide, near: float) -> list:

@@ -164,7 +164,7 @@ def _tips(face: Face, model: Model, g: _FaceGeometry):
     events = [_events(ce, g) if k else [] for ce, k in zip(ces, ok, strict=True)]
     for ce, ev in zip(ces, events, strict=True):
         for k, (w, kind) in enumerate(ev):
-            if kind == 0 and 0 < k < len(ev) - 1 and ev[k - 1][1] == ev[k + 1][1] == 1:
+            if kind == 0 and 0 < k < len(ev) - 1 and ev[k - 1][1] and ev[k + 1][1]:
                 lo, hi = ev[k - 1][0], ev[k + 1][0]
                 uv = ce.curve.evaluate(np.array([lo, w, hi]))
                 yield ((ce.edge, lo, hi),), uv[1], uv[[0, 2]]
@@ -210,7 +210,7 @@ def _vertex_arc(ca, ea, cb, eb, pa: np.ndarray):
     start_b = cb.last if cb.reversed else cb.first
     near_a = ea[-2] if not ca.reversed else ea[1]
     near_b = eb[1] if not cb.reversed else eb[-2]
-    if near_a[1] != 1 or near_b[1] != 1:
+    if near_a[1] == 0 or near_b[1] == 0:
         return None
     ia = (ca.edge, min(end_a, near_a[0]), max(end_a, near_a[0]))
     ib = (cb.edge, min(start_b, near_b[0]), max(start_b, near_b[0]))
@@ -362,9 +362,11 @@ def _notch_line(pieces: list[_Piece], skip: set[int], tip: float, far: float, sp
     as the arc is wide, at most halfway). None where neither is free, or the arc crosses a knot line
     (the turned cells must lie in one span)."""
     inner_u = [float(x) for x in g.ub[1:-1]]
-    if any((x - tip) * bulge > 0 and (far - x) * bulge > 0 for x in inner_u):
-        return None
     margin = _CLEAR * g.ueps_lines
+    # a knot on the tip itself counts too (plate_with_holes: a circle's vertex tip lies exactly on
+    # the u-knot 0.74777, and turned cells from a line before it to the arc straddled the knot)
+    if any((x - tip) * bulge > -margin and (far - x) * bulge > 0 for x in inner_u):
+        return None
     ends = [float(x) for k, p in enumerate(pieces) if k not in skip
             for x in (p.H[0, 0] / p.H[0, 2], p.H[-1, 0] / p.H[-1, 2])]
     cands = [x for x in ends + inner_u if (tip - x) * bulge > margin]
