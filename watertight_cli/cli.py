@@ -265,11 +265,11 @@ BATCH_ONLY = {"recursive": "--recursive", "fmt": "--format", "jobs": "--jobs", "
               show_default=True, metavar="REL",
               help="Allowed deviation where approximation is needed, relative to the model's "
                    "bounding-box diagonal (1e-6: one micron on a one-metre part).")
-@click.option("--wrap-tips", is_flag=True, default=False,
+@click.option("--wrap-tips/--no-wrap-tips", default=_DEFAULTS.wrap_tips, show_default=True,
               help="Wrap each point where a trimming curve turns back in u (a hole's leftmost and "
                    "rightmost points) in cells turned by 90 degrees, instead of cutting the face "
-                   "with a line tangent to the curve there: no patch corner of zero angle. "
-                   "Experimental: it can leave inner sides about 1e-8 apart on large models.")
+                   "with a line tangent to the curve there, which leaves patch corners of zero "
+                   "angle. --no-wrap-tips gives fewer patches.")
 @click.option("--max-aspect", type=click.FloatRange(min=1.0, min_open=True), default=_DEFAULTS.slender_ratio,
               show_default=True, metavar="RATIO",
               help="Longest an edge along a patch may be for the patch's width. Stage 1 leaves "

@@ -13,11 +13,9 @@ point of an outer loop), the bulge is wrapped instead:
 
 - the edge plan cuts the curve where it has turned ``_TURN`` (45 degrees in 3D, by the span's speed
   bounds) from the iso direction on either side of the extremum, or where it first crosses a u-knot
-  line (``wrap_sites``), so the arc between stays within 45 degrees of the u-iso direction; an arc
-  that would end at a vertex first is not wrapped (on gmsh__917_fusee.stp such an arc, a whole
-  edge of 23 pieces, left inner sides 1.4e-8 apart after stage 2: I2 failed), and neither is a
-  face that stage 1 turned (its plan was cut for the face as it was; gmsh__wing_fuselage.step's
-  face 12 left a gap of 1.5e-6 and a free edge);
+  line, or at a vertex (``wrap_sites``), so the arc between stays within 45 degrees of the u-iso
+  direction; a face that stage 1 turned is not wrapped (its plan was cut for the face as it was;
+  gmsh__wing_fuselage.step's face 12 left a gap of 1.5e-6 and a free edge);
 - the arc is replaced, for the slab decomposition, by a three-sided notch: a v-iso line from each of
   its ends to the nearest slab line beyond the tip, and that slab line between them (``wrapped``);
 - the region between the notch and the arc is cut by v-iso lines through the arc's piece ends (the
@@ -26,8 +24,13 @@ point of an outer loop), the bulge is wrapped instead:
   ruled map and turned back (``turned_patches``).
 
 Every corner there then has an angle of at least about 45 degrees. A site is used only where the
-region is free of other pieces and lies in one span in u; otherwise the face keeps the slab line
-through the tip (the cuts the plan made for the site stay, as ordinary corners).
+region is free of other pieces and lies in one span in u (a tip on a knot line cannot be wrapped:
+the cells must end on the knot line, which is tangent to the curve there); otherwise the face keeps
+the slab line through the tip (the cuts the plan made for the site stay, as ordinary corners).
+
+The turned cells' rungs end on the notch's slab line, and the cells beyond it are cut there: many
+T-vertices on the long sides of their neighbours, and sides that stage 2 shares, then moves with a
+T-vertex (``substitute._share_inner`` shares those again).
 """
 
 from __future__ import annotations
