@@ -1106,3 +1106,63 @@ def test_a_rational_guide_is_measured_in_space():
     assert _guide_gap(row, [(0.0, 1.0, K)]) < 1e-12
     bent = row + np.array([[0.0, 0.0, 0.0], [0.0, 0.3, 0.0], [0.0, 0.0, 0.0]])
     assert _guide_gap(bent, [(0.0, 1.0, K)]) > 0.1
+
+
+def _ladder(n: int = 30, shift: float = 1e-6):
+    """A face of n + 1 flat cells (z = 0, uv = xy): L = [0, 1] x [0, 1] on the left, and n cells
+    stacked on [1, 2] x [k/n, (k+1)/n] beside it, every other one rational with weights 1 -> 2
+    along s. L's right side stands ``shift`` off x = 1, so the stacked cells' left sides, which end
+    on T-vertices of it, move their corners when they become its pieces (with n + 1 > 25
+    T-vertices it is not bent through them)."""
+    from types import SimpleNamespace
+
+    from watertight_cli.untrim import Patch, Side
+
+    def side(a, b):
+        return Side(np.array([[*a, 1.0], [*b, 1.0]]), True)
+
+    def net(u0, u1, v0, v1, rational):
+        ctrl = np.array([[[u, v, 0.0] for v in (v0, v1)] for u in (u0, u1)])
+        if rational:  # the same flat cell, its homogeneous net times w(s) = 1 -> 2 (degree 2 in s)
+            h = np.concatenate([ctrl, np.ones((2, 2, 1))], axis=-1)
+            ctrl = product(h, np.array([1.0, 2.0]), axis=0)
+        return ctrl
+
+    big = net(0.0, 1.0, 0.0, 1.0, False)
+    big[-1, :, 0] += shift
+    patches = [Patch(0, big, False, side((0, 0), (1, 0)), side((0, 1), (1, 1)))]
+    vs = np.linspace(0.0, 1.0, n + 1)
+    for k in range(n):
+        patches.append(Patch(0, net(1.0, 2.0, vs[k], vs[k + 1], k % 2 == 1), k % 2 == 1,
+                             side((1, vs[k]), (2, vs[k])), side((1, vs[k + 1]), (2, vs[k + 1]))))
+    fr = SimpleNamespace(face=0, patches=patches, eps=None)
+    info, labels, ids = [], {}, {}
+    for i, p in enumerate(patches):
+        cm = np.array([[p.bottom.H[0, :2], p.top.H[0, :2]], [p.bottom.H[-1, :2], p.top.H[-1, :2]]])
+        info.append(({name: None for name in S.SIDES}, cm))
+        for c in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            labels[(i, c)] = ids.setdefault(tuple(np.round(cm[c], 9)), len(ids))
+    return fr, info, labels
+
+
+def test_sides_shared_before_a_t_vertex_moved_them_are_shared_again():
+    """Stacked cells share their sides first (the lowest-degree row wins); then their left sides
+    become pieces of the long side beside them and their corners move onto it, each patch by the
+    blend its own degree and weights give. The shared sides no longer matched (fusee face 184 with
+    wrapped tips: a degree-1 side against a rational degree-5 one, 4.6e-8 apart) until the pairs
+    touched are shared again."""
+    fr, info, labels = _ladder()
+    fs = S.FaceSubstitution(0)
+    S._share_inner(fr, info, labels, fs, Tolerances(), 3.0)
+    assert fs.inner_t == 30 and fs.inner_shared == 29
+    g = np.linspace(0.0, 1.0, 65)
+
+    def row(p, name):
+        h = p.ctrl if p.rational else np.concatenate([p.ctrl, np.ones(p.ctrl.shape[:2] + (1,))], axis=-1)
+        return rational_curve_eval(S._row(h, name), g)
+
+    moved = max(abs(row(p, "bottom")[0, 0] - 1.0) for p in fr.patches[1:])
+    assert moved > 0.5e-6  # the corners did move onto the long side
+    gaps = [float(np.linalg.norm(row(a, "top") - row(b, "bottom"), axis=1).max())
+            for a, b in zip(fr.patches[1:-1], fr.patches[2:], strict=True)]
+    assert max(gaps) <= 1e-14
