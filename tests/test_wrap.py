@@ -115,5 +115,6 @@ def test_wrap_tips_is_the_default_of_convert(tmp_path):
         assert res.exit_code == 0, res.output
         rep = json.loads(res.stdout)
         assert all(rep["invariants"].values())
+        assert (rep["wraps"] > 0) is not bool(extra)  # the report counts them
         counts.append(rep["patches_out"])
     assert counts[1] > counts[0]

@@ -188,6 +188,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
             "thin_patches": fc.thin,
             "plan_cuts_left_out": fr.strip_cuts,
             "pole_caps": fr.pole_caps,
+            "wraps": fr.wraps,
             "problems": fc.problems,
         })
     return {
@@ -215,6 +216,7 @@ def untrim_report(ins, result, check, tol: Tolerances, src: str, dst: str | None
         "thin_patches": sum(c.thin for c in check.faces),
         "plan_cuts_left_out": sum(f.strip_cuts for f in result.faces),
         "pole_caps": sum(f.pole_caps for f in result.faces),
+        "wraps": sum(f.wraps for f in result.faces),
         "verified": check.ok,
         "faces": faces,
     }
