@@ -83,7 +83,7 @@ class Tolerances:
         from it, and a check that pairs each boundary sample with the nearest boundary of another
         face (the independent checker's) finds the neighbour across the tangent line nearer than
         the partner across the curve (plate_with_holes: 16 samples over 1e-9 of the diagonal
-        without the wraps, none with them). It costs patches (plate_with_holes 337 -> 403).
+        without the wraps, none with them). It costs patches (plate_with_holes 291 -> 403).
     """
 
     gap_samples: int = 33
