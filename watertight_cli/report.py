@@ -80,6 +80,29 @@ def input_report(ins: Inspection) -> dict:
     return report
 
 
+def boundary_report(model, timings: dict | None = None) -> dict:
+    """``report --boundary``: the topology-blind boundary gap (``boundary.boundary_gap``) as JSON."""
+    import time
+
+    from .boundary import PER_EDGE, boundary_gap
+
+    t = time.perf_counter()
+    g = boundary_gap(model)
+    if timings is not None:
+        timings["boundary"] = round(time.perf_counter() - t, 4)
+    return {
+        "samples": g.samples,
+        "samples_per_edge": PER_EDGE,
+        "gap": g.matched_max,
+        "gap_relative": g.matched_max / model.diagonal if model.diagonal else None,
+        "where": None if g.where is None else [round(x, 9) for x in g.where],
+        "unmatched": g.unmatched,
+        "match_distance": g.match,
+        "over_limit": g.over,
+        "limit": g.limit,
+    }
+
+
 def edge_gap_rows(gaps) -> list[dict]:
     """Per-edge gaps as JSON rows, worst first (``where``: the worst sample's x, y, z)."""
     return [
@@ -114,6 +137,12 @@ def format_table(r: dict) -> str:
     lines.append(f"  max gap {g['max']:.3g} ({g['max_relative']:.2g} of diagonal): curve-to-face "
                  f"{g['max_curve_to_face']:.3g}, face-to-face {g['max_face_to_face']:.3g}; median "
                  f"{g['median']:.3g}; {g['edges_over_tolerance']} edges exceed their tolerance")
+    b = r.get("boundary")
+    if b:
+        lines.append(f"  boundary (topology-blind, {b['samples']} samples): largest distance to another "
+                     f"face's boundary {b['gap']:.3g} ({(b['gap_relative'] or 0):.2g} of diagonal); "
+                     f"{b['over_limit']} samples over {b['limit']:.3g}; {b['unmatched']} with no other "
+                     f"boundary within {b['match_distance']:.3g}")
     worst = r["edge_gaps"][:WORST_IN_TABLE]
     if worst:
         lines.append(f"  {'edge':>6} {'faces':>10} {'gap':>10} {'C-S(pc)':>10} {'S1-S2':>10} "
