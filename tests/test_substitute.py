@@ -149,6 +149,13 @@ def test_fixture_converts_with_invariants(tmp_path, name):
         assert rep["after"]["lens_width_max"] <= 0.5 * Tolerances().approx_rel * rep["diagonal"]
     # every shared edge's faces follow its curve at the mapped parameter to rounding (I2's line)
     assert rep["after"]["edge_deviation_max"] <= Tolerances().watertight_rel * rep["diagonal"]
+    # and without the topology: every point of every face's boundary lies on another face's
+    # boundary within I2's line (``boundary``); only an open fixture's rim has none near
+    from watertight_cli.boundary import boundary_gap
+
+    g = boundary_gap(keep["read_back"].model)
+    assert g.matched_max <= Tolerances().watertight_rel * rep["diagonal"], (g.matched_max, g.where)
+    assert (g.unmatched == 0) == (rep["before"]["free_edges"] == 0), g.unmatched
     for f in rep["faces"]:  # the measured deviation never exceeds the certified bound it replaces
         assert f["deviation_after"] <= f["bound_after"]
         assert f["deviation_after"] <= f["bound_allowed"]
