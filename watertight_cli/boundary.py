@@ -29,8 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .gaps import _curve_at, _surface_at
-from .model import Model
+from .core.bernstein import basis
+from .gaps import _surface_at
+from .model import BSplineCurve, Model
 
 #: samples looked up inside every edge of every face's boundary (the independent checker's 15)
 PER_EDGE = 15
@@ -39,8 +40,12 @@ _DENSE = 65
 #: nearest polyline points looked at first, for an upper bound of each sample's distance
 _FIRST = 16
 #: bracketing rounds of the projection onto one curve, and the points of each
-_ROUNDS = 7
-_ROUND_POINTS = 17
+_ROUNDS = 4
+_ROUND_POINTS = 33
+#: points of the parabola on the last bracket
+_PARABOLA = 129
+#: samples looked up at a time (bounds the memory of the candidate lists)
+_CHUNK = 100_000
 
 
 @dataclass(frozen=True)
@@ -52,6 +57,17 @@ class BoundaryGap:
     match: float  # the distance that separates the two (model units)
     over: int  # matched samples farther than ``limit``
     limit: float
+
+
+def _curve_at(curve: BSplineCurve, w: np.ndarray) -> np.ndarray:
+    """``curve.evaluate(w)``; a one-span curve by its Bernstein basis (``gaps._curve_at`` keeps its
+    bases by parameters, which here are new at every call)."""
+    n = curve.degree + 1
+    if len(curve.poles) != n or len(curve.knots) != 2 * n:
+        return curve.evaluate(w)
+    k0, k1 = float(curve.knots[0]), float(curve.knots[-1])
+    h = basis(curve.degree, (np.asarray(w, dtype=float) - k0) / (k1 - k0)) @ curve.homogeneous()
+    return h[:, :-1] / h[:, -1:] if curve.rational else h
 
 
 class _Boundaries:
@@ -100,24 +116,44 @@ class _Boundaries:
             start = stop
         return out
 
-    def project(self, ci: int, p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Distances (k,) from points ``p`` (k, 3) to curve ``ci``, each searched for in its bracket
-        [lo, hi] (fractions of the range) by ``_ROUNDS`` scans of ``_ROUND_POINTS`` points, each
-        round narrowing to the two steps around the nearest, then the foot on the last chord."""
+    def at_pairs(self, curve: np.ndarray, S: np.ndarray) -> np.ndarray:
+        """Points (k, m, 3) of curves ``curve`` (k,), all of one face, at fractions ``S`` (k, m)."""
+        uv = np.empty(S.shape + (2,))
+        order = np.argsort(curve, kind="stable")
+        cuts = np.flatnonzero(np.diff(curve[order])) + 1
+        for grp in np.split(order, cuts):
+            _, pc, a, b = self.curves[int(curve[grp[0]])]
+            uv[grp] = _curve_at(pc, a + S[grp].ravel() * (b - a)).reshape(len(grp), -1, 2)
+        fi = int(self.face[curve[0]])
+        return _surface_at(self.model.faces[fi].surface, uv.reshape(-1, 2)).reshape(S.shape + (3,))
+
+    def project(self, curve: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Distances (k,) from points ``p`` (k, 3) to curves ``curve`` (k,) of one face, each searched
+        for in its bracket [lo, hi] (fractions of the range) by ``_ROUNDS`` scans of
+        ``_ROUND_POINTS`` points, each round narrowing to the two steps around the nearest; on the
+        last bracket the curve is taken as the parabola through its ends and middle."""
         row = np.arange(len(p))
         t = np.linspace(0.0, 1.0, _ROUND_POINTS)
         best = np.full(len(p), np.inf)
         for _ in range(_ROUNDS):
             S = lo[:, None] + (hi - lo)[:, None] * t[None]
-            d = np.linalg.norm(self.at(ci, S) - p[:, None], axis=2)
+            d = np.linalg.norm(self.at_pairs(curve, S) - p[:, None], axis=2)
             k = np.argmin(d, axis=1)
             best = np.minimum(best, d[row, k])
             lo, hi = S[row, np.maximum(k - 1, 0)], S[row, np.minimum(k + 1, _ROUND_POINTS - 1)]
-        A, B = self.at(ci, lo), self.at(ci, hi)
+        Q = self.at_pairs(curve, np.stack([lo, 0.5 * (lo + hi), hi], axis=1))
+        tau = np.linspace(0.0, 1.0, _PARABOLA)[None, :, None]
+        # Lagrange form through tau = 0, 1/2, 1: chord sag is gone, what is left is cubic in the step
+        P = (Q[:, None, 0] * (2 * tau - 1) * (tau - 1) - Q[:, None, 1] * 4 * tau * (tau - 1)
+             + Q[:, None, 2] * tau * (2 * tau - 1))
+        # the foot on the parabola's fine polyline (its chords stray by the square of 1/128 of the
+        # bracket): a point on it would miss by its spacing along the curve
+        A, B = P[:, :-1], P[:, 1:]
         AB = B - A
-        w = np.clip(np.einsum("ij,ij->i", p - A, AB) / np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300),
-                    0.0, 1.0)
-        return np.minimum(best, np.linalg.norm(A + w[:, None] * AB - p, axis=1))
+        w = np.clip(np.einsum("kij,kij->ki", p[:, None] - A, AB)
+                    / np.maximum(np.einsum("kij,kij->ki", AB, AB), 1e-300), 0.0, 1.0)
+        d = np.linalg.norm(A + w[..., None] * AB - p[:, None], axis=2).min(axis=1)
+        return np.minimum(best, d)
 
 
 def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -126,6 +162,41 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     w = np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
     w = np.clip(w, 0.0, 1.0)
     return np.linalg.norm(a + w[:, None] * ab - p, axis=1)
+
+
+def _brackets(bd: _Boundaries, pts: np.ndarray, owner: np.ndarray, first: int, classes, a, b, sag,
+              m: int):
+    """For samples ``pts`` (numbered from ``first``): (sample, curve, lo, hi) of every curve of
+    another face that may hold the sample's nearest point, lo and hi bracketing the fractions of
+    its segments that may (widened by one segment each way)."""
+    found_s, found_g = [], []
+    for sel, tree, reach in classes:
+        k = min(_FIRST, len(sel))
+        _, nb = tree.query(pts, k=k, distance_upper_bound=reach)
+        nb = nb.reshape(len(pts), k)
+        rows, cols = np.nonzero(nb < len(sel))
+        g = sel[nb[rows, cols]]
+        keep = bd.other(owner[rows], g // m)
+        found_s.append(rows[keep])
+        found_g.append(g[keep])
+    ps, pg = np.concatenate(found_s), np.concatenate(found_g)
+    if not len(ps):
+        return np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0)
+    dseg = _segment_distance(pts[ps], a[pg], b[pg])
+    upper = np.full(len(pts), np.inf)
+    np.minimum.at(upper, ps, dseg + sag[pg])
+    need = dseg - sag[pg] <= upper[ps]  # segments that may hold the nearest point
+    ps, pg = ps[need], pg[need]
+    n = len(bd.curves)
+    pc, j = pg // m, pg % m
+    key = ps.astype(np.int64) * n + pc
+    order = np.lexsort((j, key))
+    key, j = key[order], j[order]
+    head = np.r_[True, key[1:] != key[:-1]]
+    tail = np.r_[key[1:] != key[:-1], True]
+    lo, hi = np.maximum(j[head] - 1, 0) / m, np.minimum(j[tail] + 2, m) / m
+    key = key[head]
+    return key // n + first, key % n, lo, hi
 
 
 def boundary_gap(model: Model, per_edge: int = PER_EDGE, match_rel: float = 1e-6,
@@ -146,49 +217,25 @@ def boundary_gap(model: Model, per_edge: int = PER_EDGE, match_rel: float = 1e-6
     mid, length = 0.5 * (a + b), np.linalg.norm(b - a, axis=1)
     # how far the curve strays from its chord: twice the midpoint's distance (exact for a parabola)
     sag = 2.0 * np.linalg.norm(half.reshape(-1, 3) - mid, axis=1) + 1e-15 * diag
-    seg_curve = np.repeat(np.arange(n), m)
 
     # candidate segments: a curve within ``match`` of a sample has a segment whose midpoint lies
     # within match + sag + half its length; looked up per class of similar length
     cls = np.floor(np.log2(np.maximum(length, 1e-300))).astype(int)
-    found_s, found_g = [], []
+    classes = []
     for c in np.unique(cls):
         sel = np.flatnonzero(cls == c)
-        reach = match + float((0.5 * length[sel] + sag[sel]).max())
-        k = min(_FIRST, len(sel))
-        _, nb = cKDTree(mid[sel]).query(coarse, k=k, distance_upper_bound=reach)
-        nb = nb.reshape(len(coarse), k)
-        rows, cols = np.nonzero(nb < len(sel))
-        g = sel[nb[rows, cols]]
-        keep = bd.other(owner[rows], seg_curve[g])
-        found_s.append(rows[keep])
-        found_g.append(g[keep])
-    ps, pg = np.concatenate(found_s), np.concatenate(found_g)
+        classes.append((sel, cKDTree(mid[sel]), match + float((0.5 * length[sel] + sag[sel]).max())))
+    brackets = [_brackets(bd, coarse[i:i + _CHUNK], owner[i:i + _CHUNK], i, classes, a, b, sag, m)
+                for i in range(0, len(coarse), _CHUNK)]
+    s_of, c_of, lo, hi = (np.concatenate([br[k] for br in brackets]) for k in range(4))
     best = np.full(len(coarse), np.inf)
-    if len(ps):
-        dseg = _segment_distance(coarse[ps], a[pg], b[pg])
-        upper = np.full(len(coarse), np.inf)
-        np.minimum.at(upper, ps, dseg + sag[pg])
-        need = dseg - sag[pg] <= upper[ps]  # segments that may hold the nearest point
-        ps, pg = ps[need], pg[need]
-        # one bracket per (sample, curve): the segments it may lie on, widened by one on each side
-        pc = seg_curve[pg]
-        j = pg - pc * m
-        key = ps.astype(np.int64) * n + pc
-        order = np.lexsort((j, key))
-        key, j = key[order], j[order]
-        first = np.r_[True, key[1:] != key[:-1]]
-        last = np.r_[key[1:] != key[:-1], True]
-        lo = np.maximum(j[first] - 1, 0) / m
-        hi = np.minimum(j[last] + 2, m) / m
-        key = key[first]
-        s_of, c_of = key // n, key % n
-        dist = np.empty(len(key))
-        order = np.argsort(c_of, kind="stable")
-        cuts = np.flatnonzero(np.diff(c_of[order])) + 1
+    if len(s_of):
+        dist = np.empty(len(s_of))
+        f_of = bd.face[c_of]
+        order = np.argsort(f_of, kind="stable")
+        cuts = np.flatnonzero(np.diff(f_of[order])) + 1
         for grp in np.split(order, cuts):
-            if len(grp):
-                dist[grp] = bd.project(int(c_of[grp[0]]), coarse[s_of[grp]], lo[grp], hi[grp])
+            dist[grp] = bd.project(c_of[grp], coarse[s_of[grp]], lo[grp], hi[grp])
         np.minimum.at(best, s_of, dist)
     free = best > match
     matched = best[~free]
