@@ -91,6 +91,8 @@ def boundary_report(model, timings: dict | None = None) -> dict:
     if timings is not None:
         timings["boundary"] = round(time.perf_counter() - t, 4)
     return {
+        "note": "each boundary point's distance to the nearest boundary of another face, on the B-spline "
+                "arrays (faces with angular parameters within 1e-10 of the diagonal of the kernel's)",
         "samples": g.samples,
         "samples_per_edge": PER_EDGE,
         "gap": g.matched_max,
