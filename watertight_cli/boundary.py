@@ -43,7 +43,7 @@ from .model import BSplineCurve, Model
 PER_EDGE = 15
 #: polyline points per coedge for the candidate search
 _DENSE = 65
-#: nearest polyline points looked at first, for an upper bound of each sample's distance
+#: segments looked up first per sample and length class (four times as many while all are in reach)
 _FIRST = 16
 #: the projection onto one curve: points scanned in the bracket, Newton steps, and the central
 #: differences' step (a fraction of the curve's range: C'' is then good to 1e-16 x size / step^2)
@@ -171,14 +171,23 @@ def _brackets(bd: _Boundaries, pts: np.ndarray, owner: np.ndarray, first: int, c
     its segments that may (widened by one segment each way)."""
     found_s, found_g = [], []
     for sel, tree, reach in classes:
-        k = min(_FIRST, len(sel))
-        _, nb = tree.query(pts, k=k, distance_upper_bound=reach)
-        nb = nb.reshape(len(pts), k)
-        rows, cols = np.nonzero(nb < len(sel))
-        g = sel[nb[rows, cols]]
-        keep = bd.other(owner[rows], g // m)
-        found_s.append(rows[keep])
-        found_g.append(g[keep])
+        ask, k = np.arange(len(pts)), _FIRST
+        while len(ask):  # all k within reach: there may be more, ask again for four times as many
+            k = min(k, len(sel))
+            _, nb = tree.query(pts[ask], k=k, distance_upper_bound=reach)
+            nb = nb.reshape(len(ask), k)
+            full = nb[:, -1] < len(sel)
+            if k < len(sel):
+                nb, done = nb[~full], ask[~full]
+            else:
+                done, full = ask, np.zeros(len(ask), dtype=bool)
+            rows, cols = np.nonzero(nb < len(sel))
+            g = sel[nb[rows, cols]]
+            rows = done[rows]
+            keep = bd.other(owner[rows], g // m)
+            found_s.append(rows[keep])
+            found_g.append(g[keep])
+            ask, k = ask[full], 4 * k
     ps, pg = np.concatenate(found_s), np.concatenate(found_g)
     if not len(ps):
         return np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0)
