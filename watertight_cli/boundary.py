@@ -51,7 +51,7 @@ _SCAN = 9
 _NEWTON = 4
 _STEP = 1e-5
 #: samples looked up at a time (bounds the memory of the candidate lists)
-_CHUNK = 100_000
+_CHUNK = 20_000
 
 
 @dataclass(frozen=True)
