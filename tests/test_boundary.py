@@ -8,7 +8,7 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from watertight_cli.boundary import boundary_gap
+from watertight_cli.boundary import boundary_gap, nearest_boundaries
 from watertight_cli.cli import main
 from watertight_cli.model import BSplineCurve, BSplineSurface, Coedge, Edge, Face, Loop, Model
 
@@ -75,6 +75,24 @@ def test_the_nearest_boundary_wins_over_the_nearest_sample():
                               for x in np.arange(0, 8, 0.01)])
     _, idx = cKDTree(dense).query(np.c_[xs, np.ones(15), np.zeros(15)])
     assert (idx >= 272).any()
+
+
+def test_a_crowd_nearer_than_the_partner_s_segments_does_not_hide_it():
+    """Twenty other faces' sides run 2e-5 to 4e-4 beside a shared side, each with a polyline
+    segment centred on the side's middle sample, while the partner's nearest segment centre lies
+    0.05 away along it: the 16 nearest segments are all the crowd's. The partner is still found
+    (fusee: a point measured 2.25e-4 from its partner's boundary before the lookup asked again)."""
+    length = 6.4  # 64 polyline segments of 0.1: the crowd's sides are as long, one length class
+    face = np.array([[[0, 0, 0], [0, 1, 0]], [[length, 0, 0], [length, 1, 0]]], float)
+    partner = np.array([[[0, -1, 0], [0, 0, 0]], [[length, -1, 0], [length, 0, 0]]], float)
+    x0, x1 = -0.05, length - 0.05  # a segment centre at x = 3.2, under the middle sample
+    crowd = [np.array([[[x0, -d, 0], [x0, -d - 1, 0]], [[x1, -d, 0], [x1, -d - 1, 0]]])
+             for d in 2e-5 * np.arange(1, 21)]
+    m = _quads([face, partner] + crowd, diagonal=1000.0)  # match 1e-3: the whole crowd in reach
+    pts, faces, dist = nearest_boundaries(m, 15, 1e-3)
+    middle = np.flatnonzero((faces == 0) & (np.linalg.norm(pts - [length / 2, 0, 0], axis=1) < 1e-12))
+    assert len(middle) == 1
+    assert dist[middle[0]] < 1e-12
 
 
 def test_open_sheet_rim_is_free_and_the_rest_matched():

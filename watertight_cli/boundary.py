@@ -214,9 +214,23 @@ def boundary_gap(model: Model, per_edge: int = PER_EDGE, match_rel: float = 1e-6
     ``limit_rel`` are relative to the model's diagonal (the independent checker's 1e-6 and 1e-9)."""
     diag = model.diagonal or 1.0
     match, limit = match_rel * diag, limit_rel * diag
+    coarse, _, best = nearest_boundaries(model, per_edge, match)
+    free = best > match
+    matched = best[~free]
+    i = int(np.flatnonzero(~free)[np.argmax(matched)]) if len(matched) else None
+    return BoundaryGap(len(coarse), float(matched.max()) if len(matched) else 0.0,
+                       None if i is None else tuple(float(x) for x in coarse[i]),
+                       int(free.sum()), match, int((matched > limit).sum()), limit)
+
+
+def nearest_boundaries(model: Model, per_edge: int, match: float):
+    """(points (k, 3), their faces (k,), distances (k,)): ``per_edge`` points inside every edge of
+    every face's boundary and each one's distance to the nearest boundary of another face (inf
+    where none lies within ``match``, model units)."""
+    diag = model.diagonal or 1.0
     bd = _Boundaries(model)
     if not bd.curves:
-        return BoundaryGap(0, 0.0, None, 0, match, 0, limit)
+        return np.zeros((0, 3)), np.zeros(0, dtype=int), np.zeros(0)
     n, m = len(bd.curves), _DENSE - 1
     coarse = bd.sample(np.arange(1, per_edge + 1) / (per_edge + 1)).reshape(-1, 3)
     owner = np.repeat(np.arange(n), per_edge)
@@ -246,9 +260,5 @@ def boundary_gap(model: Model, per_edge: int = PER_EDGE, match_rel: float = 1e-6
         for grp in np.split(order, cuts):
             dist[grp] = bd.project(c_of[grp], coarse[s_of[grp]], lo[grp], hi[grp])
         np.minimum.at(best, s_of, dist)
-    free = best > match
-    matched = best[~free]
-    i = int(np.flatnonzero(~free)[np.argmax(matched)]) if len(matched) else None
-    return BoundaryGap(len(coarse), float(matched.max()) if len(matched) else 0.0,
-                       None if i is None else tuple(float(x) for x in coarse[i]),
-                       int(free.sum()), match, int((matched > limit).sum()), limit)
+    best[best > match] = np.inf
+    return coarse, bd.face[owner], best
