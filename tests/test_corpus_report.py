@@ -112,8 +112,8 @@ def test_occ22470_output_is_closed_without_the_topology(tmp_path):
     line (1e-12 of the diagonal) of another face's boundary, measured without the topology
     (``boundary``). The independent checker leaves 2 of the same 480780 points unmatched: it
     measures each against the curve of the nearest of its own samples, and at two corners where
-    the sides leave almost tangent (0.003 and 0.004 rad) that is a third face's. Slow: about two
-    and a half minutes."""
+    the sides leave almost tangent (0.003 and 0.004 rad) that is a third face's. Slow: about a
+    minute and a half."""
     from watertight_cli.boundary import boundary_gap
     from watertight_cli.convert import convert_file
     from watertight_cli.tolerances import Tolerances
