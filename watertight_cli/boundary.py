@@ -37,9 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .core.bernstein import basis
-from .gaps import _surface_at
-from .model import BSplineCurve, Model
+from .gaps import _curve_at, _surface_at
+from .model import Model
 
 #: samples looked up inside every edge of every face's boundary (the independent checker's 15)
 PER_EDGE = 15
@@ -65,17 +64,6 @@ class BoundaryGap:
     match: float  # the distance that separates the two (model units)
     over: int  # matched samples farther than ``limit``
     limit: float
-
-
-def _curve_at(curve: BSplineCurve, w: np.ndarray) -> np.ndarray:
-    """``curve.evaluate(w)``; a one-span curve by its Bernstein basis (``gaps._curve_at`` keeps its
-    bases by parameters, which here are new at every call)."""
-    n = curve.degree + 1
-    if len(curve.poles) != n or len(curve.knots) != 2 * n:
-        return curve.evaluate(w)
-    k0, k1 = float(curve.knots[0]), float(curve.knots[-1])
-    h = basis(curve.degree, (np.asarray(w, dtype=float) - k0) / (k1 - k0)) @ curve.homogeneous()
-    return h[:, :-1] / h[:, -1:] if curve.rational else h
 
 
 class _Boundaries:
@@ -111,7 +99,7 @@ class _Boundaries:
             while stop < len(self.curves) and self.face[stop] == self.face[start]:
                 stop += 1
             fi = int(self.face[start])
-            uv = np.concatenate([_curve_at(pc, a + fractions * (b - a))
+            uv = np.concatenate([_curve_at(pc, a + fractions * (b - a), shared=False)
                                  for _, pc, a, b in self.curves[start:stop]])
             out[start:stop] = _surface_at(self.model.faces[fi].surface, uv).reshape(stop - start, -1, 3)
             start = stop
@@ -124,7 +112,7 @@ class _Boundaries:
         cuts = np.flatnonzero(np.diff(curve[order])) + 1
         for grp in np.split(order, cuts):
             _, pc, a, b = self.curves[int(curve[grp[0]])]
-            uv[grp] = _curve_at(pc, a + S[grp].ravel() * (b - a)).reshape(len(grp), -1, 2)
+            uv[grp] = _curve_at(pc, a + S[grp].ravel() * (b - a), shared=False).reshape(len(grp), -1, 2)
         fi = int(self.face[curve[0]])
         return _surface_at(self.model.faces[fi].surface, uv.reshape(-1, 2)).reshape(S.shape + (3,))
 

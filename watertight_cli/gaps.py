@@ -113,15 +113,20 @@ def _span_basis(degree: int, k0: float, k1: float, w_bytes: bytes) -> np.ndarray
     return basis(degree, (w - k0) / (k1 - k0))
 
 
-def _curve_at(curve: BSplineCurve, w: np.ndarray) -> np.ndarray:
+def _curve_at(curve: BSplineCurve, w: np.ndarray, shared: bool = True) -> np.ndarray:
     """``curve.evaluate(w)``; a one-span curve (every curve of a converted model) by its Bernstein
     basis at ``w``, shared between the many edges sampled at the same parameters (a scipy spline
-    per call cost 20-30 us an edge)."""
+    per call cost 20-30 us an edge). ``shared`` False: parameters that no other call asks for
+    (``boundary``'s searches), whose bases would only fill the cache."""
     n = curve.degree + 1
     if len(curve.poles) != n or len(curve.knots) != 2 * n:
         return curve.evaluate(w)
     k0, k1 = float(curve.knots[0]), float(curve.knots[-1])
-    b = _span_basis(curve.degree, k0, k1, np.ascontiguousarray(w, dtype=float).tobytes())
+    w = np.ascontiguousarray(w, dtype=float)
+    if shared:
+        b = _span_basis(curve.degree, k0, k1, w.tobytes())
+    else:
+        b = basis(curve.degree, (w - k0) / (k1 - k0))
     h = b @ curve.homogeneous()
     return h[:, :-1] / h[:, -1:] if curve.rational else h
 
